@@ -1,0 +1,98 @@
+"""Frames, the one rule used everywhere (features, ground truth, VAD, environments).
+
+* Frame ``t`` covers samples ``[t * hop, t * hop + K)``; only complete windows are kept, no
+  padding, so a frame is available as soon as its last sample arrives (causal).
+* ``n_frames = 1 + (n_samples - K) // hop`` for ``n_samples >= K`` (else 0, an error for features).
+  20 s at 16 kHz with K = 4096, hop = 3072 gives the paper's 103 frames.
+* Frame time (``frame_times``) is the window centre: ``(t * hop + K / 2) / fs`` seconds.
+* A frame is *silent* unless more than 2/3 of its samples are voice-active (the paper's rule).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+DEFAULT_FS = 16000
+DEFAULT_WINDOW = 4096
+ACTIVE_FRACTION = 2.0 / 3.0
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    """Window length ``K`` (samples), hop (samples) and sample rate."""
+
+    window: int = DEFAULT_WINDOW
+    hop: int | None = None
+    fs: int = DEFAULT_FS
+
+    def __post_init__(self) -> None:
+        if self.hop is None:
+            object.__setattr__(self, "hop", 3 * self.window // 4)
+        if self.window < 2 or self.hop < 1:
+            from doabench.errors import ConfigError
+
+            raise ConfigError(f"invalid frame settings: window={self.window}, hop={self.hop}")
+
+    def n_frames(self, n_samples: int) -> int:
+        return n_frames(n_samples, self.window, self.hop)
+
+    def times(self, n: int) -> np.ndarray:
+        return frame_times(n, self.window, self.hop, self.fs)
+
+    def to_dict(self) -> dict:
+        return {"window": self.window, "hop": self.hop, "fs": self.fs}
+
+
+def n_frames(n_samples: int, window: int, hop: int) -> int:
+    """Number of complete windows in ``n_samples`` samples."""
+    return 0 if n_samples < window else 1 + (n_samples - window) // hop
+
+
+def frame_times(n: int, window: int, hop: int, fs: int) -> np.ndarray:
+    """Centre time in seconds of each of ``n`` frames, shape ``(n,)``."""
+    return (np.arange(n) * hop + window / 2) / fs
+
+
+def frame_signal(x: torch.Tensor | np.ndarray, window: int, hop: int):
+    """Split the last axis into frames: ``(..., samples)`` -> ``(..., frames, window)``.
+
+    A strided view (no copy) for both numpy arrays and torch tensors.
+    """
+    n = n_frames(x.shape[-1], window, hop)
+    if isinstance(x, torch.Tensor):
+        return x[..., : (n - 1) * hop + window].unfold(-1, window, hop) if n else x[..., :0].unsqueeze(-1)
+    if n == 0:
+        return np.zeros(x.shape[:-1] + (0, window), dtype=x.dtype)
+    return np.lib.stride_tricks.sliding_window_view(x, window, axis=-1)[..., ::hop, :][..., :n, :]
+
+
+def frame_vad(sample_vad, window: int, hop: int):
+    """Per-sample VAD ``(..., samples)`` (bool or 0/1) -> per-frame VAD ``(..., frames)`` bool.
+
+    A frame is active when more than 2/3 of its samples are active.
+    """
+    if isinstance(sample_vad, torch.Tensor):
+        frames = frame_signal(sample_vad.float(), window, hop)
+        return frames.mean(-1) > ACTIVE_FRACTION
+    frames = frame_signal(np.asarray(sample_vad, dtype=np.float32), window, hop)
+    return frames.mean(-1) > ACTIVE_FRACTION
+
+
+def frame_mean_directions(sample_dirs: np.ndarray, window: int, hop: int) -> np.ndarray:
+    """Per-sample direction unit vectors ``(..., samples, 3)`` -> per-frame ``(..., frames, 3)``.
+
+    The frame value is the mean over the window's samples, renormalised to unit length. Averaging
+    unit vectors is the same as averaging angles with the azimuth unwrapped inside the window
+    (for the small angular spans one window covers) and has no wrap-around problem.
+    """
+    from doabench.geometry import normalize
+
+    d = np.moveaxis(np.asarray(sample_dirs, dtype=np.float64), -1, 0)  # (3, ..., samples)
+    n = n_frames(d.shape[-1], window, hop)
+    # A cumulative sum gives every window mean in one pass without materialising the frames.
+    c = np.concatenate([np.zeros(d.shape[:-1] + (1,)), np.cumsum(d, axis=-1)], axis=-1)
+    starts = np.arange(n) * hop
+    means = (c[..., starts + window] - c[..., starts]) / window
+    return normalize(np.moveaxis(means, 0, -1))

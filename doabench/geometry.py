@@ -1,0 +1,109 @@
+"""Angle conventions shared by every part of doabench.
+
+* Directions are unit vectors ``(x, y, z)`` in the **array frame**.
+* ``elevation`` is the *inclination* from +z in radians, in ``[0, pi]`` (0 = straight up),
+  as in the paper's maps (N_theta rows over ``[0, pi]``).
+* ``azimuth`` is ``atan2(y, x)`` in ``[-pi, pi)``.
+* ``u = (sin(el) cos(az), sin(el) sin(az), cos(el))``.
+
+All functions accept numpy arrays or torch tensors with any leading shape and the angle/vector
+axis last; they return the same kind of array they were given.
+"""
+from __future__ import annotations
+
+import math
+from typing import Union
+
+import numpy as np
+import torch
+
+ArrayLike = Union[np.ndarray, torch.Tensor]
+
+SPEED_OF_SOUND = 343.0  # m/s, the value the issues fix
+
+
+def _lib(x: ArrayLike):
+    return torch if isinstance(x, torch.Tensor) else np
+
+
+def angles_to_unit(elevation: ArrayLike, azimuth: ArrayLike) -> ArrayLike:
+    """(elevation, azimuth) in radians, shape ``(...)`` each -> unit vectors ``(..., 3)``."""
+    lib = _lib(elevation)
+    s = lib.sin(elevation)
+    return lib.stack([s * lib.cos(azimuth), s * lib.sin(azimuth), lib.cos(elevation)], -1)
+
+
+def unit_to_angles(u: ArrayLike) -> tuple[ArrayLike, ArrayLike]:
+    """Vectors ``(..., 3)`` (any norm > 0) -> (elevation, azimuth) in radians, each ``(...)``."""
+    lib = _lib(u)
+    x, y, z = u[..., 0], u[..., 1], u[..., 2]
+    rho = lib.sqrt(x * x + y * y)
+    elevation = lib.arctan2(rho, z) if lib is np else torch.atan2(rho, z)
+    azimuth = lib.arctan2(y, x) if lib is np else torch.atan2(y, x)
+    return elevation, azimuth
+
+
+def normalize(u: ArrayLike, eps: float = 1e-12) -> ArrayLike:
+    """Scale vectors ``(..., 3)`` to unit norm."""
+    if isinstance(u, torch.Tensor):
+        return u / u.norm(dim=-1, keepdim=True).clamp_min(eps)
+    return u / np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), eps)
+
+
+def great_circle_error(u: ArrayLike, v: ArrayLike) -> ArrayLike:
+    """Angle in radians between directions ``(..., 3)`` (need not be unit norm).
+
+    atan2(|u x v|, u . v) is accurate for small and large angles alike; arccos of a clamped dot
+    product would put a floor of about 1e-4 rad under small float32 errors.
+    """
+    if isinstance(u, torch.Tensor) or isinstance(v, torch.Tensor):
+        u = torch.as_tensor(u)
+        v = torch.as_tensor(v, dtype=u.dtype, device=u.device)
+        return torch.atan2(torch.linalg.cross(u, v, dim=-1).norm(dim=-1), (u * v).sum(-1))
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.sum(u * v, axis=-1))
+
+
+def wrap_angle(a: ArrayLike) -> ArrayLike:
+    """Wrap radians to ``[-pi, pi)``."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    """``"16x32"`` -> ``(16, 32)`` (N_theta, N_phi). Raises ConfigError on anything else."""
+    from doabench.errors import ConfigError
+
+    try:
+        a, b = text.lower().split("x")
+        n_theta, n_phi = int(a), int(b)
+    except ValueError:
+        raise ConfigError(f"resolution {text!r} is not of the form N_THETAxN_PHI, e.g. 16x32") from None
+    if n_theta < 2 or n_phi < 2:
+        raise ConfigError(f"resolution {text!r}: both N_theta and N_phi must be at least 2")
+    return n_theta, n_phi
+
+
+def grid_angles(n_theta: int, n_phi: int, planar: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The equiangular SRP grid.
+
+    Elevations: ``n_theta`` values over ``[0, pi]`` with both ends included (``[0, pi/2]`` for
+    planar arrays). Azimuths: ``n_phi`` values over ``[-pi, pi)`` (``-pi + 2 pi j / n_phi``).
+    Returns ``(elevations (n_theta,), azimuths (n_phi,))`` in radians, float64.
+    """
+    top = math.pi / 2 if planar else math.pi
+    elevations = np.linspace(0.0, top, n_theta)
+    azimuths = -math.pi + 2 * math.pi * np.arange(n_phi) / n_phi
+    return elevations, azimuths
+
+
+def grid_unit_vectors(n_theta: int, n_phi: int, planar: bool = False) -> np.ndarray:
+    """Unit vectors of every grid point, shape ``(n_theta, n_phi, 3)``, float64."""
+    el, az = grid_angles(n_theta, n_phi, planar)
+    return angles_to_unit(el[:, None] + 0 * az[None, :], az[None, :] + 0 * el[:, None])
+
+
+def grid_spacing_deg(n_theta: int, n_phi: int, planar: bool = False) -> tuple[float, float]:
+    """(elevation step, azimuth step) in degrees."""
+    top = 90.0 if planar else 180.0
+    return top / (n_theta - 1), 360.0 / n_phi
