@@ -1,0 +1,114 @@
+"""The public tracker API.
+
+A tracker turns per-frame features into one direction estimate per frame. Subclass
+:class:`Tracker`, set the class attributes, implement :meth:`reset` and :meth:`step` (causal) or
+:meth:`track` (offline, whole episode), and register it::
+
+    import numpy as np
+    import doabench
+
+    @doabench.register_tracker("my-tracker")
+    class MyTracker(doabench.Tracker):
+        features = ("srp",)          # observation keys it reads
+        causal = True
+
+        def reset(self, array, frame_spec=None, resolution=None):
+            self.grid = ...
+
+        def step(self, observation):
+            srp = observation["srp"]          # (n_theta, n_phi), float32
+            ...
+            return np.array([x, y, z])        # unit vector, array frame
+
+Observations are dicts of numpy arrays for one frame, with the keys a tracker lists in
+``features`` plus ``vad`` (1 if the frame is voice-active, else 0):
+
+* ``srp``: ``(n_theta, n_phi)`` SRP-PHAT map, mean removed, divided by its maximum, zero in silent frames
+* ``srp_max``: ``(2,)`` normalised elevation and azimuth of the map maximum in ``[0, 1]``
+* ``gcc``: ``(n_pairs, 2 * max_lag + 1)`` GCC-PHAT for lags ``-max_lag..max_lag``
+* ``spectrogram``: ``(2 * n_mics, window // 2)`` magnitudes (each frame divided by its maximum)
+  then phases / pi, DC bin dropped
+
+Options from the command line (``--tracker name:16x32`` and ``--tracker-opt key=value``) arrive as
+keyword arguments of the constructor: the part after the colon is passed as ``spec``.
+"""
+from __future__ import annotations
+
+from typing import Any, ClassVar, Mapping, Sequence
+
+import numpy as np
+
+from doabench.arrays import MicArray
+from doabench.framing import FrameSpec
+
+
+class Tracker:
+    """Base class of every tracker. See the module docstring for the contract."""
+
+    #: registry id, set by :func:`doabench.register_tracker` (or by the subclass)
+    name: ClassVar[str] = ""
+    #: bump when the tracker's outputs change for the same input and weights
+    version: ClassVar[str] = "1"
+    #: causal trackers are run frame by frame with :meth:`step`; others with :meth:`track`
+    causal: ClassVar[bool] = True
+    #: observation keys the tracker reads (``srp``, ``srp_max``, ``gcc``, ``spectrogram``)
+    features: ClassVar[Sequence[str]] = ("srp",)
+
+    def __init__(self, spec: str | None = None, **options: Any) -> None:
+        self.spec = spec
+        self.options = dict(options)
+
+    # -- what the environment needs to know -------------------------------------------------
+    @property
+    def resolution(self) -> tuple[int, int] | None:
+        """``(n_theta, n_phi)`` of the SRP maps it needs, or None if it reads no map."""
+        return None
+
+    @property
+    def frame_spec(self) -> FrameSpec:
+        """Window, hop and sample rate of the features it needs."""
+        return FrameSpec()
+
+    @property
+    def receptive_field_frames(self) -> int | None:
+        """How many past frames one estimate depends on (None: unbounded, e.g. a Kalman filter)."""
+        return 1
+
+    def weights_hash(self) -> str | None:
+        """SHA-256 of the weights file it loaded, if any."""
+        return None
+
+    def parameter_count(self) -> int:
+        """Trainable parameters (0 for classical trackers)."""
+        return 0
+
+    def describe(self) -> dict[str, Any]:
+        """What ``doabench describe`` prints."""
+        return {
+            "name": self.name,
+            "version": self.version,
+            "spec": self.spec,
+            "causal": self.causal,
+            "features": list(self.features),
+            "resolution": None if self.resolution is None else "%dx%d" % self.resolution,
+            "parameters": self.parameter_count(),
+            "receptive_field_frames": self.receptive_field_frames,
+            "frame": self.frame_spec.to_dict(),
+            "weights_hash": self.weights_hash(),
+        }
+
+    # -- the work -------------------------------------------------------------------------------
+    def reset(self, array: MicArray, **context: Any) -> None:
+        """Start a new episode recorded with ``array``. Called before the first step."""
+
+    def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        """One frame in, one direction ``(3,)`` out (causal trackers)."""
+        raise NotImplementedError(f"tracker {self.name!r} is offline-only: use track()")
+
+    def track(self, episode: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Whole episode in (each value ``(frames, ...)``), directions ``(frames, 3)`` out.
+
+        The default runs :meth:`step` frame by frame, so causal trackers need not override it.
+        """
+        n = len(episode["vad"])
+        return np.stack([self.step({k: v[t] for k, v in episode.items()}) for t in range(n)]) if n else np.zeros((0, 3))
