@@ -1,2 +1,37 @@
-"""doabench: benchmark suite and dataset generator for single-source DOA estimation and tracking."""
+"""doabench: benchmark suite and dataset generator for single-source DOA estimation and tracking.
+
+Public API::
+
+    import doabench
+    doabench.Tracker, doabench.register_tracker, doabench.make_tracker   # trackers
+    doabench.register_task, doabench.get_task_spec, doabench.available_tasks  # tasks
+    env = gymnasium.make("doabench/sim-demo-v0", features=("srp",), resolution=(16, 32))
+    doabench.run(tracker="srp-max", task="sim-demo")                   # scored results dict
+"""
+from __future__ import annotations
+
 __version__ = "0.1.0"
+
+from doabench.arrays import MicArray, get_array, load_array_file
+from doabench.envs.registry import available_tasks, get_task_spec, register_task
+from doabench.envs.sources import register_task_kind
+from doabench.episode import Episode
+from doabench.errors import DoabenchError
+from doabench.framing import FrameSpec
+from doabench.trackers import Tracker, available_trackers, make_tracker, register_tracker
+
+
+def run(tracker, task, **kwargs):
+    """Run a tracker (id or instance) on a task; see :func:`doabench.runner.run_task`."""
+    from doabench.runner import run_task
+
+    return run_task(tracker, task, **kwargs)
+
+
+available_tasks()  # registers every task with Gymnasium at import time
+
+__all__ = [
+    "DoabenchError", "Episode", "FrameSpec", "MicArray", "Tracker", "available_tasks", "available_trackers",
+    "get_array", "get_task_spec", "load_array_file", "make_tracker", "register_task", "register_task_kind",
+    "register_tracker", "run",
+]

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from doabench.arrays import MicArray
 from doabench.framing import FrameSpec, frame_mean_directions, frame_vad
 from doabench.geometry import unit_to_angles
 
@@ -23,6 +24,8 @@ class Episode:
     * ``sample_directions``: ``(n_samples, 3)`` unit vectors from the array centre to the source,
       in the array frame (float32 or float64)
     * ``metadata``: JSON-serialisable description (scene parameters, recording ids, seed, ...)
+    * ``array``: the array geometry this recording was made with, when it differs from the task's
+      (e.g. LOCATA's per-recording measured microphone positions); None means the task's array
     """
 
     audio: np.ndarray
@@ -30,6 +33,7 @@ class Episode:
     sample_vad: np.ndarray
     sample_directions: np.ndarray
     metadata: dict[str, Any] = field(default_factory=dict)
+    array: MicArray | None = None
 
     @property
     def n_samples(self) -> int:

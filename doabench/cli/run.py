@@ -1,0 +1,44 @@
+"""``doabench run --tracker X --task Y``: run, score, print a table, write results."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from doabench.cli.common import add_corpus_options, add_tracker_options, corpus_kwargs
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run a tracker on a task and score it",
+                       description="Run a tracker on a task, print the scores and write a results JSON and CSV. "
+                                   "An interrupted run resumes from its .partial.jsonl file when run again.")
+    add_tracker_options(p)
+    p.add_argument("--task", required=True, help="task id (doabench list tasks)")
+    p.add_argument("--episodes", type=int, help="run only the first N episodes")
+    p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
+    p.add_argument("--out", default="results", help="folder for results files (default: results/)")
+    p.add_argument("--no-frames", action="store_true", help="do not store per-frame estimates in the JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_corpus_options(p)
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from doabench.results.writer import format_summary, results_stem, write_results
+    from doabench.runner import run_task
+    from doabench.trackers.registry import make_tracker, parse_options
+    from doabench.envs.registry import get_task_spec
+
+    options = parse_options(args.tracker_opt)
+    tracker = make_tracker(args.tracker, **options)
+    spec = get_task_spec(args.task)
+    out = Path(args.out)
+    partial = out / f".{results_stem(spec.id, args.tracker)}.partial.jsonl"
+    results = run_task(tracker, spec.id, episodes=args.episodes, device=args.device, delays=args.delays,
+                       tracker_options=options, partial_path=partial, progress=not args.quiet,
+                       keep_frames=not args.no_frames, **corpus_kwargs(args))
+    results["tracker"]["id"] = args.tracker
+    json_path, csv_path = write_results(results, out)
+    partial.unlink(missing_ok=True)
+    print(format_summary(results))
+    print(f"wrote {json_path} and {csv_path}")
+    return 0

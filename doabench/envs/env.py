@@ -1,0 +1,183 @@
+"""The Gymnasium environment every task runs in.
+
+One episode is one recording (simulated trajectory or real recording). ``reset`` renders it and
+returns the features of frame 0; each ``step(action)`` takes the tracker's direction for the
+current frame, returns ``reward = -angular error`` (radians) for it and the features of the next
+frame. The truth of a frame is only revealed in ``info`` after its step, so a tracker cannot peek.
+
+Features are causal per frame (each needs only the samples of its own window), so computing all of
+an episode's frames at reset is identical to streaming them (``doabench.features`` tests this);
+the environment still hands them out one frame per step.
+
+Non-causal trackers use the separate offline path :meth:`DoaEnv.offline_episode` and
+:meth:`DoaEnv.score_offline`; results record ``causal: false``.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any, Sequence
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from doabench.arrays import MicArray, get_array
+from doabench.envs.registry import get_task_spec
+from doabench.envs.sources import make_episode_source
+from doabench.envs.spec import TaskSpec
+from doabench.episode import Episode
+from doabench.errors import ConfigError, InputError
+from doabench.framing import FrameSpec
+from doabench.geometry import great_circle_error, parse_resolution
+
+FEATURE_KINDS = ("srp", "srp_max", "gcc", "spectrogram")
+
+
+class DoaEnv(gymnasium.Env):
+    """``gymnasium.make("doabench/<task>-v<version>", features=("srp", "srp_max"), resolution=(16, 32))``.
+
+    Parameters: ``task`` (id or TaskSpec); ``features`` (subset of srp, srp_max, gcc, spectrogram);
+    ``resolution`` ((n_theta, n_phi) or "16x32"); ``delays`` ("nearest" or "exact");
+    ``frame_spec`` (default: the task's); ``device`` for simulation and features; ``librispeech``,
+    ``locata_root``, ``split``, ``backend`` and other options go to the task's episode source.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, task: str | TaskSpec, features: Sequence[str] = ("srp", "srp_max"),
+                 resolution: tuple[int, int] | str = (16, 32), delays: str = "nearest",
+                 frame_spec: FrameSpec | None = None, device: str | None = None, cache_size: int = 2,
+                 **source_options: Any) -> None:
+        super().__init__()
+        self.spec_task = get_task_spec(task)
+        unknown = sorted(set(features) - set(FEATURE_KINDS))
+        if unknown:
+            raise ConfigError(f"unknown feature kind(s) {unknown}; choose from {', '.join(FEATURE_KINDS)}")
+        self.features = tuple(features)
+        self.resolution = parse_resolution(resolution) if isinstance(resolution, str) else tuple(resolution)
+        self.delays = delays
+        self.frame_spec = frame_spec or self.spec_task.frames
+        if self.frame_spec.fs != self.spec_task.frames.fs:
+            raise ConfigError(f"task {self.spec_task.id!r} runs at {self.spec_task.frames.fs} Hz, "
+                              f"not {self.frame_spec.fs} Hz")
+        self.device = device
+        self.array: MicArray = get_array(self.spec_task.array)
+        self.source = make_episode_source(self.spec_task, device=device, **source_options)
+        self._cache: OrderedDict[int, tuple[Episode, dict, dict]] = OrderedDict()
+        self._cache_size = max(1, cache_size)
+        self._extractors: dict[bytes, Any] = {}
+        self.observation_space = self._observation_space()
+        self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self._t = 0
+        self._episode_index: int | None = None
+
+    # -- spaces -----------------------------------------------------------------------------------
+    def _observation_space(self) -> spaces.Dict:
+        m, n_pairs = self.array.n_mics, len(self.array.pairs)
+        lags = 2 * self.array.max_lag(self.frame_spec.fs) + 1
+        boxes = {
+            "srp": spaces.Box(-np.inf, np.inf, self.resolution, np.float32),
+            "srp_max": spaces.Box(0.0, 1.0, (2,), np.float32),
+            "gcc": spaces.Box(-np.inf, np.inf, (n_pairs, lags), np.float32),
+            "spectrogram": spaces.Box(-1.0, 1.0, (2 * m, self.frame_spec.window // 2), np.float32),
+        }
+        space = {k: boxes[k] for k in self.features}
+        space["vad"] = spaces.Discrete(2)
+        return spaces.Dict(space)
+
+    # -- episodes ---------------------------------------------------------------------------------
+    @property
+    def n_episodes(self) -> int:
+        return len(self.source)
+
+    def _extractor(self, array: MicArray):
+        from doabench.features import FeatureExtractor
+
+        key = array.positions.tobytes()
+        if key not in self._extractors:
+            kinds = tuple(self.features) if self.features else ("srp",)
+            self._extractors[key] = FeatureExtractor(array, kinds=kinds, resolution=self.resolution,
+                                                     mode=self.delays, frame_spec=self.frame_spec)
+        return self._extractors[key]
+
+    def load_episode(self, index: int) -> tuple[Episode, dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Render episode ``index``; returns (episode, features (T, ...), truth (T, ...))."""
+        if index in self._cache:
+            self._cache.move_to_end(index)
+            return self._cache[index]
+        episode = self.source.episode(index)
+        array = episode.array or self.array
+        if episode.n_mics != array.n_mics:
+            raise InputError(f"episode {index} of {self.spec_task.id!r} has {episode.n_mics} channels but array "
+                             f"{array.name!r} has {array.n_mics} microphones")
+        import torch
+
+        audio = torch.as_tensor(np.ascontiguousarray(episode.audio), dtype=torch.float32, device=self.device)
+        vad = torch.as_tensor(np.asarray(episode.sample_vad, bool), device=self.device)
+        feats = self._extractor(array)(audio[None], vad[None])
+        feats = {k: v[0].detach().cpu().numpy() for k, v in feats.items()}
+        truth = episode.frame_truth(self.frame_spec)
+        n = len(truth["directions"])
+        feats["vad"] = feats["vad"].astype(np.int64) if "vad" in feats else truth["vad"].astype(np.int64)
+        for k, v in feats.items():
+            if len(v) != n:
+                raise RuntimeError(f"feature {k!r} has {len(v)} frames, truth has {n}")  # a doabench bug
+        entry = (episode, feats, truth)
+        self._cache[index] = entry
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        return entry
+
+    def _observation(self, t: int) -> dict[str, Any]:
+        if t >= self._n_frames:
+            return {k: np.zeros(s.shape, s.dtype) if isinstance(s, spaces.Box) else 0
+                    for k, s in self.observation_space.spaces.items()}
+        obs = {k: self._feats[k][t] for k in self.features}
+        obs["vad"] = int(self._feats["vad"][t])
+        return obs
+
+    # -- gymnasium API ----------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        if "episode" in options:
+            index = int(options["episode"])
+        else:
+            index = int(self.np_random.integers(self.n_episodes))
+        self._episode, self._feats, self._truth = self.load_episode(index)
+        self._episode_index = index
+        self._n_frames = len(self._truth["directions"])
+        self._t = 0
+        info = {"episode": index, "n_frames": self._n_frames, "frame_times": self._truth["times"],
+                "metadata": self._episode.metadata}
+        return self._observation(0), info
+
+    def step(self, action):
+        if self._episode_index is None:
+            raise gymnasium.error.ResetNeeded("call reset() before step()")
+        if self._t >= self._n_frames:
+            raise gymnasium.error.ResetNeeded("the episode is over; call reset()")
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (3,) or not np.all(np.isfinite(a)):
+            raise InputError(f"action must be a finite direction vector of shape (3,), got {a.shape} {a!r}")
+        truth = self._truth["directions"][self._t]
+        error = float(great_circle_error(a, truth))
+        info = {"frame": self._t, "truth": truth, "vad": bool(self._truth["vad"][self._t]),
+                "error_rad": error, "time_s": float(self._truth["times"][self._t])}
+        self._t += 1
+        terminated = self._t >= self._n_frames
+        return self._observation(self._t), -error, terminated, False, info
+
+    # -- offline path for non-causal trackers ------------------------------------------------------
+    def offline_episode(self) -> dict[str, np.ndarray]:
+        """All frames of the current episode at once (``(T, ...)`` per key, plus ``vad``).
+
+        Only for non-causal trackers; results made this way record ``causal: false``.
+        """
+        if self._episode_index is None:
+            raise gymnasium.error.ResetNeeded("call reset() before offline_episode()")
+        return {**{k: self._feats[k] for k in self.features}, "vad": self._feats["vad"]}
+
+    def episode_truth(self) -> dict[str, np.ndarray]:
+        """Truth of the current episode; the runner reads it only after the tracker has finished."""
+        return self._truth

@@ -1,0 +1,146 @@
+"""Task specs: versioned descriptions of a benchmark task, kept as TOML files.
+
+A spec file (``tasks/<id>.toml``)::
+
+    id = "sim-demo"
+    version = 0            # bump whenever a change can move a score
+    kind = "simulated"     # which episode source builds the episodes (see doabench.envs.sources)
+    description = "..."
+    array = "nao"          # built-in array name or a JSON/YAML array file
+    episodes = 3
+    base_seed = 1000
+    [frames]               # optional, defaults: window 4096, hop 3/4 window, fs 16000
+    window = 4096
+    [speech]               # kind-specific sections are kept verbatim in ``params``
+    corpus = "embedded"
+    [scene]
+    t60 = [0.2, 0.5]
+
+A file may also define a *grid*: ``[grid]`` with ``t60 = [...]`` and ``snr = [...]`` plus
+``cell_id = "sim-t60-{t60}-snr-{snr}"`` and ``episodes_per_cell``. It then registers one task per
+cell (fixed T60 and SNR) and the grid task itself, whose episodes are the cells' episodes in order.
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+from doabench.errors import ConfigError
+from doabench.framing import FrameSpec
+
+REQUIRED = ("id", "version", "kind")
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """A registered task. ``params`` holds the kind-specific sections (scene, speech, grid...)."""
+
+    id: str
+    version: int
+    kind: str
+    description: str = ""
+    array: str = "nao"
+    episodes: int = 1
+    base_seed: int = 0
+    frames: FrameSpec = field(default_factory=FrameSpec)
+    params: Mapping[str, Any] = field(default_factory=dict)
+    source_file: str = ""
+
+    @property
+    def gym_id(self) -> str:
+        return f"doabench/{self.id}-v{self.version}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "id": self.id,
+            "version": self.version,
+            "kind": self.kind,
+            "description": self.description,
+            "array": self.array,
+            "episodes": self.episodes,
+            "base_seed": self.base_seed,
+            "frames": self.frames.to_dict(),
+            "params": _plain(self.params),
+        }
+
+
+def _plain(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    return obj
+
+
+def format_number(x: float) -> str:
+    """0.9 -> "0.9", 0.0 -> "0", 5.0 -> "5": the form task ids use."""
+    return f"{float(x):g}"
+
+
+def spec_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> list[TaskSpec]:
+    """Build the task(s) a spec mapping defines (a grid file yields its cells and itself)."""
+    missing = [k for k in REQUIRED if k not in data]
+    if missing:
+        raise ConfigError(f"task spec {source}: missing {', '.join(missing)}")
+    try:
+        frames = FrameSpec(**dict(data.get("frames", {})))
+    except TypeError as exc:
+        raise ConfigError(f"task spec {source}: bad [frames] section: {exc}") from None
+    known = {"id", "version", "kind", "description", "array", "episodes", "base_seed", "frames"}
+    params = {k: v for k, v in data.items() if k not in known}
+    try:
+        base = TaskSpec(
+            id=str(data["id"]),
+            version=int(data["version"]),
+            kind=str(data["kind"]),
+            description=str(data.get("description", "")),
+            array=str(data.get("array", "nao")),
+            episodes=int(data.get("episodes", 1)),
+            base_seed=int(data.get("base_seed", 0)),
+            frames=frames,
+            params=params,
+            source_file=source,
+        )
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"task spec {source}: {exc}") from None
+    if "grid" not in params:
+        return [base]
+    return _expand_grid(base, source)
+
+
+def _expand_grid(base: TaskSpec, source: str) -> list[TaskSpec]:
+    grid = dict(base.params["grid"])
+    try:
+        t60s = [float(v) for v in grid["t60"]]
+        snrs = [float(v) for v in grid["snr"]]
+        per_cell = int(grid["episodes_per_cell"])
+        pattern = str(grid.get("cell_id", "sim-t60-{t60}-snr-{snr}"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"task spec {source}: [grid] needs t60, snr and episodes_per_cell ({exc})") from None
+    cells = []
+    params_wo_grid = {k: v for k, v in base.params.items() if k != "grid"}
+    for index, (t60, snr) in enumerate((t, s) for t in t60s for s in snrs):
+        scene = dict(params_wo_grid.get("scene", {}), t60=[t60, t60], snr=[snr, snr])
+        cell_id = pattern.format(t60=format_number(t60), snr=format_number(snr))
+        cells.append(replace(
+            base, id=cell_id, episodes=per_cell,
+            description=f"{base.description} Cell T60 = {format_number(t60)} s, SNR = {format_number(snr)} dB.".strip(),
+            params={**params_wo_grid, "scene": scene, "cell": {"index": index, "t60": t60, "snr": snr, "grid": base.id}},
+        ))
+    grid_task = replace(base, episodes=per_cell * len(cells),
+                        params={**base.params, "cells": [c.id for c in cells]})
+    return cells + [grid_task]
+
+
+def load_spec_file(path: str | Path) -> list[TaskSpec]:
+    """Parse one TOML spec file into its task(s)."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"task spec {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"task spec {path}: invalid TOML ({exc})") from None
+    return spec_from_dict(data, str(path))

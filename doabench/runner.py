@@ -1,0 +1,238 @@
+"""Run a tracker on a task and score it: what ``doabench run`` does.
+
+Per episode the runner resets the environment, resets the tracker with the array, then either
+steps frame by frame (causal trackers) or hands the whole episode over (offline trackers). Every
+direction the tracker returns is checked (shape (3,), finite, non-zero) before it reaches the
+environment. Finished episodes are appended to a ``.partial.jsonl`` file next to the results, so
+an interrupted run continues where it stopped when run again with the same settings.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from doabench.envs.env import DoaEnv
+from doabench.envs.registry import get_task_spec
+from doabench.errors import ConfigError, TrackerError
+from doabench.metrics import aggregate, azimuth_errors_deg, bootstrap_ci, episode_metrics, frame_errors_deg
+from doabench.results.files import to_json
+from doabench.results.provenance import environment
+from doabench.trackers.base import Tracker
+from doabench.trackers.registry import make_tracker
+
+RESULTS_SCHEMA = "doabench.results/1"
+
+
+def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
+    """A tracker's output as a unit vector, or a TrackerError naming the tracker."""
+    try:
+        a = np.asarray(d, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TrackerError(f"tracker {tracker.name!r} returned {type(d).__name__} at frame {frame}, "
+                           "not a direction vector") from None
+    if a.shape != (3,):
+        raise TrackerError(f"tracker {tracker.name!r} returned shape {a.shape} at frame {frame}; expected (3,)")
+    if not np.all(np.isfinite(a)):
+        raise TrackerError(f"tracker {tracker.name!r} returned a non-finite direction {a} at frame {frame}")
+    n = np.linalg.norm(a)
+    if n < 1e-9:
+        raise TrackerError(f"tracker {tracker.name!r} returned a zero vector at frame {frame}")
+    return a / n
+
+
+def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
+    """The offline path's ``(T, 3)`` output, checked like :func:`check_direction`."""
+    a = np.asarray(d, dtype=np.float64)
+    if a.shape != (n_frames, 3):
+        raise TrackerError(f"tracker {tracker.name!r} returned shape {a.shape}; expected ({n_frames}, 3)")
+    bad = ~np.all(np.isfinite(a), axis=1) | (np.linalg.norm(a, axis=1) < 1e-9)
+    if bad.any():
+        raise TrackerError(f"tracker {tracker.name!r} returned a non-finite or zero direction at frame "
+                           f"{int(np.argmax(bad))}")
+    return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+
+def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays: str = "nearest",
+                 **env_options: Any) -> DoaEnv:
+    """The environment configured with the features, resolution and frames a tracker needs."""
+    spec = get_task_spec(task)
+    frame_spec = tracker.frame_spec
+    if frame_spec.fs != spec.frames.fs:
+        raise ConfigError(f"tracker {tracker.name!r} needs {frame_spec.fs} Hz audio; task {spec.id!r} is "
+                          f"{spec.frames.fs} Hz")
+    return DoaEnv(spec, features=tuple(tracker.features), resolution=tracker.resolution or (16, 32),
+                  delays=delays, frame_spec=frame_spec, device=device, **env_options)
+
+
+def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
+    """One episode: returns estimates, truth, vad, times and timings."""
+    obs, info = env.reset(options={"episode": index})
+    n = info["n_frames"]
+    episode = env._episode
+    tracker.reset(episode.array or env.array, frame_spec=env.frame_spec, task=env.spec_task.id,
+                  metadata=episode.metadata)
+    start = time.perf_counter()
+    if tracker.causal:
+        estimates = np.zeros((n, 3))
+        for t in range(n):
+            estimates[t] = check_direction(tracker, tracker.step(obs), t)
+            obs, _, terminated, _, _ = env.step(estimates[t].astype(np.float32))
+    else:
+        estimates = check_directions(tracker, tracker.track(env.offline_episode()), n)
+    tracker_s = time.perf_counter() - start
+    truth = env.episode_truth()
+    return {"estimates": estimates, "truth": truth["directions"], "vad": truth["vad"], "times": truth["times"],
+            "tracker_s": tracker_s, "audio_s": episode.n_samples / episode.fs, "metadata": episode.metadata}
+
+
+def _config_hash(config: dict) -> str:
+    return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
+    meta = ep["metadata"]
+    scene = meta.get("scene", {}) if isinstance(meta.get("scene"), dict) else {}
+    row = {"episode": index, "task": meta.get("task"), "seed": meta.get("seed"),
+           "t60": scene.get("t60", meta.get("t60")), "snr": scene.get("snr_db", meta.get("snr")),
+           "recording": meta.get("recording"), "audio_s": ep["audio_s"], "tracker_s": ep["tracker_s"]}
+    row.update(episode_metrics(ep["estimates"], ep["truth"], ep["vad"]))
+    return row
+
+
+def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,
+             device: str | None = None, delays: str = "nearest", tracker_options: dict | None = None,
+             partial_path: str | Path | None = None, progress: bool | Callable = True,
+             keep_frames: bool = True, **env_options: Any) -> dict[str, Any]:
+    """Run ``tracker`` on ``task`` and return the results dictionary (see docs/results-format).
+
+    ``episodes``: a count (the first N) or explicit indices; default all of the task's episodes.
+    ``partial_path``: a JSON-lines file of finished episodes for resuming; removed by the caller
+    once the final results are written.
+    """
+    if isinstance(tracker, str):
+        tracker_text = tracker
+        tracker = make_tracker(tracker, **(tracker_options or {}))
+    else:
+        tracker_text = tracker.name
+    spec = get_task_spec(task)
+    wall_start = time.perf_counter()
+    env = make_env_for(tracker, task, device=device, delays=delays, **env_options)
+    n_total = env.n_episodes
+    if episodes is None:
+        indices = list(range(n_total))
+    elif isinstance(episodes, int):
+        if episodes < 1:
+            raise ConfigError(f"--episodes must be at least 1, got {episodes}")
+        indices = list(range(min(episodes, n_total)))
+    else:
+        indices = [int(i) for i in episodes]
+    config = {"task": spec.id, "task_version": spec.version, "tracker": tracker_text,
+              "options": tracker_options or {}, "delays": delays, "indices": indices,
+              "weights": tracker.weights_hash(), "env": {k: str(v) for k, v in env_options.items()}}
+    done = _load_partial(partial_path, _config_hash(config))
+    bar = None
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(indices), initial=len(done), desc=f"{tracker.name} on {spec.id}", unit="episode")
+    for index in indices:
+        if index in done:
+            continue
+        ep = run_episode(env, tracker, index)
+        record = {"row": _episode_row(index, ep), "errors": frame_errors_deg(ep["estimates"], ep["truth"]),
+                  "az_errors": azimuth_errors_deg(ep["estimates"], ep["truth"]), "vad": ep["vad"]}
+        if keep_frames:
+            record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"]}
+        record = json.loads(to_json(record, indent=None))
+        done[index] = record
+        if partial_path:
+            with open(partial_path, "a") as f:
+                f.write(to_json(record, indent=None) + "\n")
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(rmsae=f"{record['row']['rmsae_all']:.1f}")
+        elif callable(progress):
+            progress(index, record)
+    if bar is not None:
+        bar.close()
+    wall_s = time.perf_counter() - wall_start
+    records = [done[i] for i in indices]
+    return _results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, device, delays)
+
+
+def _load_partial(path: str | Path | None, config_hash: str) -> dict[int, dict]:
+    """Finished episodes of an interrupted run with the same configuration."""
+    if not path:
+        return {}
+    path = Path(path)
+    done: dict[int, dict] = {}
+    if path.exists():
+        lines = path.read_text().splitlines()
+        if lines and json.loads(lines[0]).get("config") == config_hash:
+            for line in lines[1:]:
+                try:
+                    rec = json.loads(line)
+                except json.JSONDecodeError:  # a line cut by a crash: that episode is redone
+                    continue
+                done[rec["row"]["episode"]] = rec
+    if not done:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"config": config_hash}) + "\n")
+    return done
+
+
+def _results(spec, tracker: Tracker, tracker_text: str, tracker_options, env: DoaEnv, records: list[dict],
+             wall_s: float, device, delays) -> dict[str, Any]:
+    rows = [r["row"] for r in records]
+    per_frame = [(np.asarray(r["errors"], float), np.asarray(r["az_errors"], float), np.asarray(r["vad"], bool))
+                 for r in records]
+    agg = aggregate(per_frame, rows)
+    ci_input = [(e, v) for e, _, v in per_frame]
+    summary = {
+        "rmsae_all": agg["pooled"]["rmsae_all"],
+        "rmsae_nonsilent": agg["pooled"]["rmsae_nonsilent"],
+        "rmsae_all_ci95": bootstrap_ci(ci_input, "rmsae_all"),
+        "rmsae_nonsilent_ci95": bootstrap_ci(ci_input, "rmsae_nonsilent"),
+        "pooled": agg["pooled"],
+        "episode_mean": agg["episode_mean"],
+    }
+    cells = {}
+    if any(r.get("t60") is not None for r in rows) and "cells" in spec.params:
+        for task_id in spec.params["cells"]:
+            idx = [i for i, r in enumerate(rows) if r["task"] == task_id]
+            if not idx:
+                continue
+            sub = aggregate([per_frame[i] for i in idx], [rows[i] for i in idx])
+            cells[task_id] = {"t60": rows[idx[0]]["t60"], "snr": rows[idx[0]]["snr"],
+                              "rmsae_all": sub["pooled"]["rmsae_all"],
+                              "rmsae_nonsilent": sub["pooled"]["rmsae_nonsilent"],
+                              "rmsae_all_ci95": bootstrap_ci([ci_input[i] for i in idx], "rmsae_all"),
+                              "rmsae_nonsilent_ci95": bootstrap_ci([ci_input[i] for i in idx], "rmsae_nonsilent"),
+                              "n_episodes": len(idx)}
+    audio_s = float(sum(r["audio_s"] for r in rows))
+    tracker_s = float(sum(r["tracker_s"] for r in rows))
+    return {
+        "schema": RESULTS_SCHEMA,
+        "task": {"id": spec.id, "version": spec.version, "kind": spec.kind, "gym_id": spec.gym_id,
+                 "base_seed": spec.base_seed, "episodes_run": len(rows), "episodes_total": env.n_episodes,
+                 "source": env.source.describe()},
+        "tracker": {"id": tracker_text, **tracker.describe(), "options": tracker_options or {}},
+        "causal": bool(tracker.causal),
+        "features": {"kinds": list(env.features), "resolution": "%dx%d" % env.resolution, "delays": delays,
+                     "frame": env.frame_spec.to_dict()},
+        "environment": environment(device),
+        "summary": summary,
+        "cells": cells,
+        "wall_time_s": wall_s,
+        "audio_s": audio_s,
+        "tracker_time_s": tracker_s,
+        "real_time_factor": audio_s / wall_s if wall_s > 0 else None,
+        "tracker_real_time_factor": audio_s / tracker_s if tracker_s > 0 else None,
+        "episodes": rows,
+        "frames": [r.get("frames") for r in records] if all("frames" in r for r in records) else None,
+    }

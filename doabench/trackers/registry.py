@@ -1,0 +1,137 @@
+"""Tracker registry: ids -> classes, from the decorator, entry points or ``module:Class`` paths.
+
+``--tracker`` text forms:
+
+* ``srp-max`` or ``srp-max:32x64`` – a registered id, with the part after the colon passed to the
+  constructor as ``spec``;
+* ``package.module:Class`` or ``package.module:Class:spec`` – any importable Tracker subclass.
+
+Third-party packages register through the ``doabench.trackers`` entry-point group
+(``name = "package.module:Class"``) or by calling :func:`register_tracker` at import time.
+"""
+from __future__ import annotations
+
+import difflib
+import importlib
+from importlib import metadata
+from typing import Any, Callable, TypeVar
+
+from doabench.errors import ConfigError, NotFoundError
+from doabench.trackers.base import Tracker
+
+T = TypeVar("T", bound=type)
+
+_REGISTRY: dict[str, type[Tracker]] = {}
+_ENTRY_POINTS_LOADED = False
+_BUILTINS_LOADED = False
+
+
+def register_tracker(name: str, cls: type[Tracker] | None = None) -> Callable[[T], T] | type[Tracker]:
+    """Register a Tracker subclass under ``name``; usable as ``@register_tracker("id")``."""
+
+    def decorate(klass: T) -> T:
+        if not (isinstance(klass, type) and issubclass(klass, Tracker)):
+            raise ConfigError(f"register_tracker({name!r}): {klass!r} is not a doabench.Tracker subclass")
+        existing = _REGISTRY.get(name)
+        if existing is not None and existing is not klass and (
+            existing.__module__, existing.__qualname__) != (klass.__module__, klass.__qualname__):
+            raise ConfigError(f"tracker id {name!r} is already registered by {existing.__module__}.{existing.__qualname__}")
+        klass.name = name
+        _REGISTRY[name] = klass
+        return klass
+
+    return decorate(cls) if cls is not None else decorate
+
+
+def _load_builtins() -> None:
+    global _BUILTINS_LOADED
+    if not _BUILTINS_LOADED:
+        _BUILTINS_LOADED = True
+        importlib.import_module("doabench.trackers.srp")
+
+
+def _load_entry_points() -> None:
+    global _ENTRY_POINTS_LOADED
+    if _ENTRY_POINTS_LOADED:
+        return
+    _ENTRY_POINTS_LOADED = True
+    for ep in metadata.entry_points(group="doabench.trackers"):
+        if ep.name in _REGISTRY:
+            continue
+        try:
+            cls = ep.load()
+        except Exception as exc:  # a broken plugin must not break doabench
+            import warnings
+
+            warnings.warn(f"doabench: tracker plugin {ep.name!r} ({ep.value}) failed to load: {exc}")
+            continue
+        register_tracker(ep.name, cls)
+
+
+def available_trackers() -> dict[str, type[Tracker]]:
+    """All registered trackers (built in, entry points, decorated), sorted by id."""
+    _load_builtins()
+    _load_entry_points()
+    return dict(sorted(_REGISTRY.items()))
+
+
+def _import_class(path: str) -> type[Tracker]:
+    module_name, _, attr = path.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise NotFoundError(f"tracker module {module_name!r} cannot be imported: {exc}") from None
+    cls = getattr(module, attr, None)
+    if not (isinstance(cls, type) and issubclass(cls, Tracker)):
+        raise NotFoundError(f"{path!r} is not a doabench.Tracker subclass")
+    return cls
+
+
+def resolve_tracker(text: str) -> tuple[type[Tracker], str | None, str]:
+    """Parse a ``--tracker`` value into (class, spec, id)."""
+    head, sep, rest = text.partition(":")
+    if "." in head and sep:
+        attr, _, spec = rest.partition(":")
+        cls = _import_class(f"{head}:{attr}")
+        return cls, spec or None, cls.name or f"{head}:{attr}"
+    trackers = available_trackers()
+    if head not in trackers:
+        close = difflib.get_close_matches(head, trackers, n=3, cutoff=0.5)
+        hint = f"; did you mean {', '.join(close)}?" if close else ""
+        raise NotFoundError(f"unknown tracker {head!r}{hint} (available: {', '.join(trackers)})")
+    return trackers[head], rest or None, head
+
+
+def parse_options(pairs: list[str] | None) -> dict[str, Any]:
+    """``["key=value", ...]`` -> dict, values parsed as int/float/bool when they look like one."""
+    options: dict[str, Any] = {}
+    for item in pairs or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"tracker option {item!r} is not of the form key=value")
+        options[key] = _parse_value(value)
+    return options
+
+
+def _parse_value(value: str) -> Any:
+    low = value.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for cast in (int, float):
+        try:
+            return cast(value)
+        except ValueError:
+            pass
+    return value
+
+
+def make_tracker(text: str, **options: Any) -> Tracker:
+    """Instantiate a tracker from its ``--tracker`` text and options."""
+    cls, spec, name = resolve_tracker(text)
+    try:
+        tracker = cls(spec=spec, **options)
+    except TypeError as exc:
+        raise ConfigError(f"tracker {name!r}: bad options {sorted(options)}: {exc}") from None
+    if not tracker.name:
+        tracker.name = name
+    return tracker

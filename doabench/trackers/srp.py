@@ -1,0 +1,101 @@
+"""Classical trackers on SRP-PHAT maps: ``srp-max`` and ``srp-kalman``."""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+
+from doabench.arrays import MicArray
+from doabench.errors import ConfigError
+from doabench.geometry import grid_unit_vectors, parse_resolution
+from doabench.trackers.base import Tracker
+from doabench.trackers.registry import register_tracker
+
+DEFAULT_RESOLUTION = (16, 32)
+_INITIAL_DIRECTION = np.array([1.0, 0.0, 0.0])  # before the first active frame: straight ahead
+
+
+class _SrpGridTracker(Tracker):
+    features = ("srp",)
+    causal = True
+
+    def __init__(self, spec: str | None = None, resolution: str | None = None, **options: Any) -> None:
+        super().__init__(spec, **options)
+        text = resolution or spec
+        self._resolution = parse_resolution(text) if text else DEFAULT_RESOLUTION
+        self._grid: np.ndarray | None = None
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return self._resolution
+
+    def reset(self, array: MicArray, **context: Any) -> None:
+        self._grid = grid_unit_vectors(*self._resolution, planar=array.planar).reshape(-1, 3)
+
+    def _argmax_direction(self, srp: np.ndarray) -> np.ndarray | None:
+        """Unit vector of the map's maximum, or None for an all-zero (silent) map."""
+        if srp.shape != self._resolution:
+            raise ConfigError(f"tracker {self.name!r} expects {self._resolution} maps, got {srp.shape}")
+        if not np.any(srp):
+            return None
+        return self._grid[int(np.argmax(srp))]
+
+
+@register_tracker("srp-max")
+class SrpMaxTracker(_SrpGridTracker):
+    """Argmax of each SRP-PHAT map (no tracking). Silent frames (zeroed maps) carry no
+    information, so the previous estimate is held there."""
+
+    def reset(self, array: MicArray, **context: Any) -> None:
+        super().reset(array, **context)
+        self._last = _INITIAL_DIRECTION.copy()
+
+    def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        d = self._argmax_direction(observation["srp"])
+        if d is not None:
+            self._last = d
+        return self._last
+
+
+@register_tracker("srp-kalman")
+class SrpKalmanTracker(_SrpGridTracker):
+    """SRP argmax followed by a Kalman filter on the unit sphere: the classic two-step tracker.
+
+    State: a 3-D direction with a random-walk model (process noise ``q`` per frame, in squared
+    unit-vector units); measurement: the argmax direction with noise ``r``. After each update the
+    state is projected back onto the sphere. Silent frames only predict. Measurements further than
+    ``gate_deg`` from the prediction are down-weighted (noise times ``gate_factor``), so single
+    outlying maxima (reflections) do not pull the track away. Options: ``q``, ``r``, ``gate_deg``,
+    ``gate_factor``.
+    """
+
+    def __init__(self, spec: str | None = None, q: float = 0.01, r: float = 0.05,
+                 gate_deg: float = 45.0, gate_factor: float = 10.0, **options: Any) -> None:
+        super().__init__(spec, **options)
+        if min(q, r, gate_factor) <= 0:
+            raise ConfigError("srp-kalman: q, r and gate_factor must be positive")
+        self.q, self.r, self.gate_cos, self.gate_factor = q, r, np.cos(np.radians(gate_deg)), gate_factor
+
+    @property
+    def receptive_field_frames(self) -> None:
+        return None  # a recursive filter remembers every past frame
+
+    def reset(self, array: MicArray, **context: Any) -> None:
+        super().reset(array, **context)
+        self._x = _INITIAL_DIRECTION.copy()
+        self._p = 1.0  # isotropic covariance (scalar times identity) keeps the filter in closed form
+        self._initialised = False
+
+    def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        z = self._argmax_direction(observation["srp"])
+        self._p += self.q
+        if z is not None:
+            if not self._initialised:
+                self._x, self._p, self._initialised = z.copy(), self.r, True
+            else:
+                r = self.r if float(z @ self._x) >= self.gate_cos else self.r * self.gate_factor
+                gain = self._p / (self._p + r)
+                self._x = self._x + gain * (z - self._x)
+                self._p = (1 - gain) * self._p
+                self._x /= max(np.linalg.norm(self._x), 1e-12)
+        return self._x
