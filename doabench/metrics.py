@@ -86,10 +86,15 @@ def aggregate(per_frame: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
         vad = np.zeros(0, bool)
     pooled = error_summary(errs, vad, azs)
     keys = [k for k in pooled if not k.startswith("n_")]
-    mean = {k: float(np.nanmean([e[k] for e in per_episode])) if per_episode else float("nan") for k in keys}
+    mean = {k: _nanmean([e.get(k, np.nan) for e in per_episode]) for k in keys}
     mean["n_episodes"] = len(per_episode)
     pooled["n_episodes"] = len(per_episode)
     return {"pooled": pooled, "episode_mean": mean}
+
+
+def _nanmean(values: list[float]) -> float:
+    v = np.asarray(values, np.float64)
+    return float(np.mean(v[~np.isnan(v)])) if np.any(~np.isnan(v)) else float("nan")
 
 
 def bootstrap_ci(per_frame: Sequence[tuple[np.ndarray, np.ndarray]], statistic: str = "rmsae_nonsilent",

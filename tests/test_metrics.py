@@ -1,0 +1,80 @@
+"""Metrics against hand-computed values."""
+import math
+
+import numpy as np
+import pytest
+
+from doabench.geometry import angles_to_unit, great_circle_error
+from doabench.metrics import aggregate, azimuth_errors_deg, bootstrap_ci, episode_metrics, frame_errors_deg
+
+
+def _rot_z(deg):
+    a = math.radians(deg)
+    return np.array([math.cos(a), math.sin(a), 0.0])
+
+
+def test_rmsae_all_and_nonsilent_by_hand():
+    truth = np.tile([1.0, 0.0, 0.0], (4, 1))
+    est = np.stack([_rot_z(d) for d in (0, 10, 20, 90)])
+    vad = np.array([1, 1, 0, 1], bool)
+    m = episode_metrics(est, truth, vad)
+    assert m["rmsae_all"] == pytest.approx(math.sqrt((0 + 100 + 400 + 8100) / 4), rel=1e-9)
+    assert m["rmsae_nonsilent"] == pytest.approx(math.sqrt((0 + 100 + 8100) / 3), rel=1e-9)
+    assert m["mae"] == pytest.approx(100 / 3)
+    assert m["mae_all"] == pytest.approx(120 / 4)
+    assert m["median"] == pytest.approx(10)
+    assert m["within_5"] == pytest.approx(1 / 3)
+    assert m["within_10"] == pytest.approx(2 / 3)
+    assert m["within_30"] == pytest.approx(2 / 3)
+    assert m["azimuth_mae"] == pytest.approx(100 / 3)
+    assert (m["n_frames"], m["n_nonsilent"]) == (4, 3)
+
+
+def test_great_circle_has_no_floor_for_tiny_errors():
+    u = np.array([0.0, 0.0, 1.0])
+    for eps in (1e-9, 1e-7, 1e-4):
+        v = np.array([math.sin(eps), 0.0, math.cos(eps)])
+        assert great_circle_error(u, v) == pytest.approx(eps, rel=1e-6)
+    # float32 torch too: arccos of a clamped float32 dot would give 0 or ~3e-4 rad here
+    import torch
+
+    e = great_circle_error(torch.tensor(u, dtype=torch.float32), torch.tensor([1e-5, 0.0, 1.0], dtype=torch.float32))
+    assert float(e) == pytest.approx(1e-5, rel=1e-3)
+
+
+def test_antipodal_and_unnormalised_inputs():
+    assert frame_errors_deg(np.array([[2.0, 0, 0]]), np.array([[-1.0, 0, 0]]))[0] == pytest.approx(180)
+    assert frame_errors_deg(np.array([[0, 5.0, 0]]), np.array([[1.0, 0, 0]]))[0] == pytest.approx(90)
+
+
+def test_azimuth_error_wraps():
+    e = angles_to_unit(np.array([math.pi / 2]), np.array([math.radians(179)]))
+    t = angles_to_unit(np.array([math.pi / 2]), np.array([math.radians(-179)]))
+    assert azimuth_errors_deg(e, t)[0] == pytest.approx(2.0)
+
+
+def test_pooled_versus_episode_mean():
+    # episode A: errors 10 (1 frame); episode B: errors 0, 0, 0 (3 frames)
+    per_frame = [(np.array([10.0]), np.array([10.0]), np.array([True])),
+                 (np.zeros(3), np.zeros(3), np.ones(3, bool))]
+    rows = [{"rmsae_all": 10.0, "rmsae_nonsilent": 10.0}, {"rmsae_all": 0.0, "rmsae_nonsilent": 0.0}]
+    agg = aggregate(per_frame, rows)
+    assert agg["pooled"]["rmsae_all"] == pytest.approx(math.sqrt(100 / 4))
+    assert agg["episode_mean"]["rmsae_all"] == pytest.approx(5.0)
+
+
+def test_silent_only_episode_gives_nan_not_crash():
+    m = episode_metrics(np.tile([1.0, 0, 0], (3, 1)), np.tile([0, 1.0, 0], (3, 1)), np.zeros(3, bool))
+    assert m["rmsae_all"] == pytest.approx(90)
+    assert math.isnan(m["rmsae_nonsilent"])
+
+
+def test_bootstrap_ci_brackets_the_estimate_and_collapses_for_equal_episodes():
+    rng = np.random.default_rng(0)
+    per = [(rng.normal(0, 10, 50), np.ones(50, bool)) for _ in range(20)]
+    pooled = math.sqrt(np.mean(np.concatenate([e for e, _ in per]) ** 2))
+    lo, hi = bootstrap_ci(per, "rmsae_all")
+    assert lo < pooled < hi
+    same = [(np.full(10, 3.0), np.ones(10, bool))] * 5
+    lo, hi = bootstrap_ci(same, "rmsae_nonsilent")
+    assert lo == pytest.approx(3.0) and hi == pytest.approx(3.0)

@@ -1,0 +1,106 @@
+"""Task and tracker registries, spec parsing, CLI list/describe and error messages."""
+import json
+
+import gymnasium
+import numpy as np
+import pytest
+
+import doabench
+from doabench.cli.main import main
+from doabench.envs.spec import spec_from_dict
+from doabench.errors import ConfigError, NotFoundError
+
+
+def test_builtin_tasks_and_grid_cells_are_registered_with_gymnasium():
+    tasks = doabench.available_tasks()
+    for required in ("sim-demo", "sim-grid", "sim-train", "sim-t60-0.9-snr-5", "sim-t60-0-snr-30", "sim-t60-1.5-snr-15"):
+        assert required in tasks
+        assert tasks[required].gym_id in gymnasium.registry
+    cells = [t for t in tasks if t.startswith("sim-t60-")]
+    assert len(cells) == 18
+    grid = tasks["sim-grid"]
+    assert grid.episodes == 18 * 5
+    cell = tasks["sim-t60-0.9-snr-5"]
+    assert cell.params["scene"]["t60"] == [0.9, 0.9] and cell.params["scene"]["snr"] == [5.0, 5.0]
+
+
+def test_gym_id_and_plain_id_resolve_to_the_same_spec():
+    assert doabench.get_task_spec("doabench/sim-demo-v0") is doabench.get_task_spec("sim-demo")
+
+
+def test_unknown_task_lists_close_matches():
+    with pytest.raises(NotFoundError, match="did you mean sim-demo"):
+        doabench.get_task_spec("sim-dmeo")
+
+
+def test_spec_validation_errors_are_clear():
+    with pytest.raises(ConfigError, match="missing version"):
+        spec_from_dict({"id": "x", "kind": "simulated"})
+    with pytest.raises(ConfigError, match=r"\[grid\] needs"):
+        spec_from_dict({"id": "g", "version": 0, "kind": "simulated", "grid": {"t60": [0.3]}})
+
+
+def test_register_task_from_a_file_without_editing_doabench(tmp_path):
+    f = tmp_path / "my-task.toml"
+    f.write_text('id = "my-task-xyz"\nversion = 3\nkind = "simulated"\nepisodes = 2\n[speech]\ncorpus = "embedded"\n')
+    specs = doabench.register_task(f)
+    assert specs[0].gym_id == "doabench/my-task-xyz-v3"
+    assert "doabench/my-task-xyz-v3" in gymnasium.registry
+
+
+def test_tracker_registry_decorator_and_module_path():
+    @doabench.register_tracker("toy-const-registry-test")
+    class Toy(doabench.Tracker):
+        features = ("srp",)
+
+        def step(self, observation):
+            return np.array([0.0, 0.0, 1.0])
+
+    t = doabench.make_tracker("toy-const-registry-test")
+    assert isinstance(t, Toy) and t.name == "toy-const-registry-test"
+    t2 = doabench.make_tracker("doabench.trackers.srp:SrpMaxTracker:8x16")
+    assert t2.resolution == (8, 16)
+    with pytest.raises(NotFoundError, match="did you mean srp-max"):
+        doabench.make_tracker("srp-mux")
+    with pytest.raises(ConfigError):
+        doabench.register_tracker("bad", object)
+
+
+def test_srp_max_options_and_describe(capsys):
+    assert main(["describe", "--tracker", "srp-max:32x64"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["resolution"] == "32x64" and d["causal"] is True and d["parameters"] == 0
+    assert {"parameters", "causal", "receptive_field_frames", "features"} <= set(d)
+
+
+def test_cli_list_and_bad_ids(capsys):
+    assert main(["list", "tasks"]) == 0
+    assert "sim-t60-0.9-snr-5" in capsys.readouterr().out
+    assert main(["list", "trackers"]) == 0
+    assert "srp-kalman" in capsys.readouterr().out
+    assert main(["describe", "--tracker", "srp-mx"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown tracker 'srp-mx'" in err and "srp-max" in err and "Traceback" not in err
+    assert main(["describe", "--tracker", "srp-max", "--tracker-opt", "novalue"]) == 2
+    assert "key=value" in capsys.readouterr().err
+
+
+def test_srp_kalman_smooths_outliers_on_the_grid():
+    from doabench.arrays import get_array
+
+    k = doabench.make_tracker("srp-kalman:8x16")
+    k.reset(get_array("nao"))
+    srp = np.zeros((8, 16), np.float32)
+    srp[4, 4] = 1.0
+    first = k.step({"srp": srp, "vad": 1})
+    for _ in range(5):
+        k.step({"srp": srp, "vad": 1})
+    outlier = np.zeros((8, 16), np.float32)
+    outlier[1, 12] = 1.0
+    after = k.step({"srp": outlier, "vad": 1})
+    # one outlying maximum moves the track by much less than the jump itself
+    jump = np.degrees(np.arccos(np.clip(first @ doabench.trackers.srp.grid_unit_vectors(8, 16).reshape(-1, 3)[1 * 16 + 12], -1, 1)))
+    moved = np.degrees(np.arccos(np.clip(first @ after, -1, 1)))
+    assert moved < 0.2 * jump
+    # a silent (all-zero) map holds the estimate
+    assert np.allclose(k.step({"srp": np.zeros((8, 16), np.float32), "vad": 0}), after)
