@@ -1,0 +1,367 @@
+"""Random acoustic scenes (the paper's section IV-A) as a pure function of (distribution, seed).
+
+:class:`SceneDistribution` holds every range and probability (defaults: the paper's values);
+:func:`sample_scene` draws a :class:`Scene` from it. Randomness comes from
+``numpy.random.SeedSequence(seed).spawn(...)``, one independent stream per part (see ``STREAMS``):
+fixing T60 or changing the trajectory rules does not move the array, the speech chunk or the noise
+of the same seed. Degenerate ranges such as ``t60 = (0.9, 0.9)`` still consume their draw for the
+same reason.
+
+Distributions load from and dump to plain dicts (the ``[scene]`` table of a task TOML file); a
+range key also accepts a single number (``t60 = 0.9`` is ``t60 = [0.9, 0.9]``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from doabench.acoustics.room import Room, check_inside
+from doabench.acoustics.trajectories import sample_directions, sample_trajectory
+from doabench.arrays import MicArray, get_array
+from doabench.errors import ConfigError
+
+# Independent random streams of a scene seed, in SeedSequence spawn order. Append, never reorder:
+# the order is part of what makes a seed reproduce the same scene.
+STREAMS = ("room", "array", "trajectory", "speech", "noise", "simulator", "directional", "directional_signal")
+NOISE_KINDS = ("pink", "brown", "lowpass")
+
+
+def scene_streams(seed: int) -> dict[str, np.random.SeedSequence]:
+    """The named child SeedSequences of a scene seed (``STREAMS``)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"scene seed must be a non-negative integer, got {seed!r}")
+    return dict(zip(STREAMS, np.random.SeedSequence(int(seed)).spawn(len(STREAMS))))
+
+
+def stream_rng(seed: int, name: str) -> np.random.Generator:
+    """``numpy.random.default_rng`` on the named stream of a scene seed."""
+    return np.random.default_rng(scene_streams(seed)[name])
+
+
+Range = tuple[float, float]
+Vec3 = tuple[float, float, float]
+
+# Field groups for validation and dict conversion.
+_RANGES = ("t60", "snr", "abs_weights", "directional_noise_snr")
+_VEC3 = ("room_min", "room_max", "array_fraction_min", "array_fraction_max")
+
+
+@dataclass(frozen=True)
+class SceneDistribution:
+    """Every range and probability of the scene generator; defaults are the paper's.
+
+    Lengths in metres, T60 in seconds, SNRs in dB. ``array_fraction_*`` place the array centre as
+    fractions of the room dimensions. ``directional_noise_p`` is the probability that a scene adds
+    a stationary directional noise source (e.g. a fan; off by default) of kind
+    ``directional_noise_kind`` at a random position, ``directional_noise_snr`` dB below the speech
+    (direct-path power over non-silent frames).
+    """
+
+    room_min: Vec3 = (3.0, 3.0, 2.5)
+    room_max: Vec3 = (10.0, 8.0, 6.0)
+    t60: Range = (0.2, 1.3)
+    snr: Range = (5.0, 30.0)
+    abs_weights: Range = (0.5, 1.0)
+    array_fraction_min: Vec3 = (0.1, 0.1, 0.1)
+    array_fraction_max: Vec3 = (0.9, 0.9, 0.5)
+    n_points: int = 156
+    duration_s: float = 20.0
+    p_static: float = 0.25
+    max_amplitude: float = 1.0
+    max_oscillations: float = 2.0
+    wall_margin: float = 0.1
+    min_array_distance: float = 0.5
+    fs: int = 16000
+    directional_noise_p: float = 0.0
+    directional_noise_snr: Range = (10.0, 30.0)
+    directional_noise_kind: str = "pink"
+
+    def __post_init__(self) -> None:
+        for name in _RANGES + _VEC3:
+            value = getattr(self, name)
+            n = 2 if name in _RANGES else 3
+            try:
+                tup = tuple(float(v) for v in value)
+            except (TypeError, ValueError):
+                raise ConfigError(f"scene parameter {name} must be a list of {n} numbers, got {value!r}") from None
+            if len(tup) != n or not all(math.isfinite(v) for v in tup):
+                raise ConfigError(f"scene parameter {name} must be {n} finite numbers, got {list(tup)}")
+            object.__setattr__(self, name, tup)
+        for name in _RANGES:
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise ConfigError(f"scene parameter {name}: low {lo} is above high {hi}")
+        _check(self.t60[0] >= 0, f"t60 must be >= 0 s (0 = anechoic), got {list(self.t60)}")
+        _check(0 <= self.abs_weights[0] and self.abs_weights[1] <= 1 and self.abs_weights[1] > 0,
+               f"abs_weights must lie in [0, 1] with a positive high value, got {list(self.abs_weights)}")
+        _check(all(0 < a <= b for a, b in zip(self.room_min, self.room_max)),
+               f"room_min {list(self.room_min)} must be positive and not above room_max {list(self.room_max)}")
+        _check(all(0 <= a <= b <= 1 for a, b in zip(self.array_fraction_min, self.array_fraction_max)),
+               "array_fraction_min/max must be fractions in [0, 1] with min <= max, got "
+               f"{list(self.array_fraction_min)} / {list(self.array_fraction_max)}")
+        for name in ("n_points", "fs"):
+            v = getattr(self, name)
+            _check(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1,
+                   f"scene parameter {name} must be a positive integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        for name in ("duration_s", "p_static", "max_amplitude", "max_oscillations", "wall_margin",
+                     "min_array_distance", "directional_noise_p"):
+            v = getattr(self, name)
+            _check(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and math.isfinite(v),
+                   f"scene parameter {name} must be a finite number, got {v!r}")
+            object.__setattr__(self, name, float(v))
+        _check(self.duration_s > 0, f"duration_s must be positive, got {self.duration_s}")
+        _check(0 <= self.p_static <= 1, f"p_static must be a probability in [0, 1], got {self.p_static}")
+        _check(0 <= self.directional_noise_p <= 1,
+               f"directional_noise_p must be a probability in [0, 1], got {self.directional_noise_p}")
+        _check(self.max_amplitude >= 0 and self.max_oscillations >= 0 and self.min_array_distance >= 0,
+               "max_amplitude, max_oscillations and min_array_distance must be >= 0")
+        _check(0 <= 2 * self.wall_margin < min(self.room_min),
+               f"wall_margin {self.wall_margin} m must be >= 0 and leave room in the smallest room {list(self.room_min)}")
+        _check(self.directional_noise_kind in NOISE_KINDS,
+               f"directional_noise_kind must be one of {', '.join(NOISE_KINDS)}, got {self.directional_noise_kind!r}")
+
+    @property
+    def n_samples(self) -> int:
+        return int(round(self.duration_s * self.fs))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (lists, numbers, strings) that :meth:`from_dict` reads back."""
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
+                for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> "SceneDistribution":
+        """Build from a (partial) dict; missing keys keep the paper's defaults."""
+        data = dict(data or {})
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"unknown scene parameter(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        for name in _RANGES:
+            if name in data and isinstance(data[name], (int, float)) and not isinstance(data[name], bool):
+                data[name] = (data[name], data[name])
+        return cls(**data)
+
+    def replace(self, **changes: Any) -> "SceneDistribution":
+        return dataclasses.replace(self, **changes)
+
+
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise ConfigError(message)
+
+
+@dataclass(frozen=True)
+class DirectionalNoise:
+    """A static, stationary noise source: ``position`` ``(3,)`` room coordinates, its level
+    ``snr_db`` below the speech, and its spectrum ``kind`` (pink, brown or lowpass)."""
+
+    position: np.ndarray
+    snr_db: float
+    kind: str = "pink"
+
+    def __post_init__(self) -> None:
+        pos = np.asarray(self.position, dtype=np.float64).reshape(3)
+        pos.setflags(write=False)
+        object.__setattr__(self, "position", pos)
+        _check(math.isfinite(self.snr_db), f"directional noise SNR must be finite, got {self.snr_db}")
+        _check(self.kind in NOISE_KINDS, f"directional noise kind must be one of {', '.join(NOISE_KINDS)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"position": self.position.tolist(), "snr_db": float(self.snr_db), "kind": self.kind}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "DirectionalNoise":
+        return cls(np.asarray(d["position"], dtype=np.float64), float(d["snr_db"]), str(d.get("kind", "pink")))
+
+
+def _frozen_array(x, shape_last: int = 3) -> np.ndarray:
+    a = np.array(x, dtype=np.float64)
+    if a.ndim == 1:
+        a = a.reshape(-1, shape_last) if a.size != shape_last else a
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """One drawn scene. Positions in metres in room coordinates unless said otherwise.
+
+    * ``array_position``: ``(3,)`` array centre; ``mic_positions``: ``(M, 3)`` in the array frame,
+      whose axes are the room axes
+    * ``trajectory``: ``(S, 3)`` source positions, point ``i`` active during segment ``i``
+      (see :mod:`doabench.acoustics.trajectories`); all equal when ``static``
+    * ``speech``: the speech source's chunk ``info`` (None for geometry-only scenes)
+    * ``seed``: the scene seed; noise and simulator randomness come from its streams
+    """
+
+    room: Room
+    snr_db: float
+    array_position: np.ndarray
+    array_name: str
+    mic_positions: np.ndarray
+    trajectory: np.ndarray
+    static: bool
+    seed: int
+    duration_s: float
+    fs: int = 16000
+    speech: dict[str, Any] | None = None
+    directional_noise: DirectionalNoise | None = None
+    trajectory_params: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "array_position", _frozen_array(self.array_position).reshape(3))
+        object.__setattr__(self, "mic_positions", _frozen_array(self.mic_positions))
+        traj = _frozen_array(self.trajectory)
+        object.__setattr__(self, "trajectory", traj)
+        _check(traj.ndim == 2 and traj.shape[1] == 3 and len(traj) >= 1,
+               f"trajectory must have shape (S, 3), got {traj.shape}")
+        _check(self.mic_positions.ndim == 2 and self.mic_positions.shape[1] == 3,
+               f"mic_positions must have shape (M, 3), got {self.mic_positions.shape}")
+        _check(isinstance(self.snr_db, (int, float, np.number)) and math.isfinite(self.snr_db),
+               f"scene SNR must be a finite number of dB, got {self.snr_db!r}")
+        _check(math.isfinite(self.room.t60) and self.room.t60 >= 0,
+               f"scene T60 must be >= 0 s (0 = anechoic), got {self.room.t60}")
+        _check(math.isfinite(self.duration_s) and self.duration_s > 0,
+               f"scene duration must be positive, got {self.duration_s}")
+        _check(int(self.fs) > 0, f"scene sample rate must be positive, got {self.fs}")
+        if self.static:
+            _check(bool(np.all(traj == traj[0])), "a static scene's trajectory points must all be equal")
+        object.__setattr__(self, "snr_db", float(self.snr_db))
+        object.__setattr__(self, "fs", int(self.fs))
+        check_inside(self.room, self.array_position[None], "array centre")
+        check_inside(self.room, self.mic_room_positions, "microphone")
+        check_inside(self.room, traj, "source")
+        if self.directional_noise is not None:
+            check_inside(self.room, self.directional_noise.position[None], "directional noise source")
+
+    # -- derived quantities
+
+    @property
+    def n_samples(self) -> int:
+        return int(round(self.duration_s * self.fs))
+
+    @property
+    def mic_room_positions(self) -> np.ndarray:
+        """Microphones in room coordinates, ``(M, 3)``."""
+        return self.array_position + self.mic_positions
+
+    @property
+    def source_positions(self) -> np.ndarray:
+        """What the simulator gets: ``(1, 3)`` for a static source, else the trajectory ``(S, 3)``."""
+        return self.trajectory[:1] if self.static else self.trajectory
+
+    @property
+    def array(self) -> MicArray:
+        return MicArray(self.array_name, np.array(self.mic_positions), source="scene")
+
+    def sample_directions(self, n_samples: int | None = None) -> np.ndarray:
+        """Per-sample truth directions in the array frame, ``(L, 3)`` float64 unit vectors."""
+        return sample_directions(self.source_positions, self.array_position,
+                                 self.n_samples if n_samples is None else n_samples)
+
+    # -- serialisation
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable description; :meth:`from_dict` rebuilds an equal scene."""
+        return {
+            "room": {"dims": [float(d) for d in self.room.dims], "t60": float(self.room.t60),
+                     "abs_weights": [float(w) for w in self.room.abs_weights]},
+            "snr_db": self.snr_db,
+            "array": {"name": self.array_name, "position": self.array_position.tolist(),
+                      "mic_positions": self.mic_positions.tolist()},
+            "trajectory": self.trajectory.tolist(),
+            "static": bool(self.static),
+            "seed": int(self.seed),
+            "duration_s": float(self.duration_s),
+            "fs": self.fs,
+            "speech": self.speech,
+            "directional_noise": None if self.directional_noise is None else self.directional_noise.to_dict(),
+            "trajectory_params": self.trajectory_params,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Scene":
+        try:
+            room = Room(tuple(float(x) for x in d["room"]["dims"]), float(d["room"]["t60"]),
+                        tuple(float(w) for w in d["room"]["abs_weights"]))
+            noise = d.get("directional_noise")
+            return cls(
+                room=room, snr_db=float(d["snr_db"]),
+                array_position=np.asarray(d["array"]["position"], dtype=np.float64),
+                array_name=str(d["array"]["name"]),
+                mic_positions=np.asarray(d["array"]["mic_positions"], dtype=np.float64),
+                trajectory=np.asarray(d["trajectory"], dtype=np.float64),
+                static=bool(d["static"]), seed=int(d["seed"]), duration_s=float(d["duration_s"]),
+                fs=int(d.get("fs", 16000)), speech=d.get("speech"),
+                directional_noise=None if noise is None else DirectionalNoise.from_dict(noise),
+                trajectory_params=dict(d.get("trajectory_params", {})),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, ConfigError):
+                raise
+            raise ConfigError(f"invalid scene description ({type(exc).__name__}: {exc})") from None
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Scene) and self.to_dict() == other.to_dict()
+
+    __hash__ = None  # mutable-looking contents (dicts); scenes are compared, not hashed
+
+
+def sample_scene(
+    dist: SceneDistribution,
+    seed: int,
+    speech_source=None,
+    array: MicArray | str = "nao",
+) -> Scene:
+    """Draw the scene of ``seed`` from ``dist`` (a pure function of both).
+
+    ``speech_source``: a :class:`~doabench.acoustics.speech.SpeechSource` whose chunk ``info`` the
+    scene records (None: geometry only, the scene cannot be rendered). ``array``: the microphone
+    array (its positions are recorded in the scene).
+    """
+    if not isinstance(dist, SceneDistribution):
+        raise ConfigError(f"sample_scene needs a SceneDistribution, got {type(dist).__name__}")
+    array = get_array(array)
+    rngs = {name: np.random.default_rng(ss) for name, ss in scene_streams(seed).items()}
+
+    r = rngs["room"]
+    dims = r.uniform(dist.room_min, dist.room_max)
+    t60 = float(r.uniform(*dist.t60))
+    snr = float(r.uniform(*dist.snr))
+    weights = r.uniform(dist.abs_weights[0], dist.abs_weights[1], 6)
+    room = Room(tuple(float(x) for x in dims), t60, tuple(float(w) for w in weights))
+
+    centre = dims * rngs["array"].uniform(dist.array_fraction_min, dist.array_fraction_max)
+
+    draw = sample_trajectory(
+        rngs["trajectory"], dims, centre, n_points=dist.n_points, p_static=dist.p_static,
+        max_amplitude=dist.max_amplitude, max_oscillations=dist.max_oscillations,
+        wall_margin=dist.wall_margin, min_array_distance=dist.min_array_distance,
+    )
+
+    speech = None
+    if speech_source is not None:
+        speech = speech_source.sample(rngs["speech"], dist.duration_s, dist.fs).info
+
+    noise = None
+    d = rngs["directional"]
+    enabled = d.random() < dist.directional_noise_p
+    # The noise position obeys the same wall margin and array clearance as a static talker.
+    noise_draw = sample_trajectory(d, dims, centre, n_points=1, p_static=1.0, wall_margin=dist.wall_margin,
+                                   min_array_distance=dist.min_array_distance)
+    noise_snr = float(d.uniform(*dist.directional_noise_snr))
+    if enabled:
+        noise = DirectionalNoise(noise_draw.points[0], noise_snr, dist.directional_noise_kind)
+
+    return Scene(
+        room=room, snr_db=snr, array_position=centre, array_name=array.name,
+        mic_positions=np.array(array.positions), trajectory=draw.points, static=draw.static,
+        seed=int(seed), duration_s=dist.duration_s, fs=dist.fs, speech=speech,
+        directional_noise=noise, trajectory_params=draw.params(),
+    )
