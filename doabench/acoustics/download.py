@@ -91,6 +91,9 @@ def download_file(url: str, target: Path, md5: str | None, retries: int = 3, pro
                     raise
                 if attempt == retries:
                     size = part.stat().st_size if part.exists() else 0
+                    if size == 0:
+                        raise DownloadError(f"download of {url} failed ({exc}); check the network or try "
+                                            "another --base-url mirror") from None
                     raise DownloadError(
                         f"download of {url} interrupted after {size} bytes ({exc}); run the same command "
                         "again to resume") from None

@@ -271,7 +271,7 @@ class Scene:
         """JSON-serialisable description; :meth:`from_dict` rebuilds an equal scene."""
         return {
             "room": {"dims": [float(d) for d in self.room.dims], "t60": float(self.room.t60),
-                     "abs_weights": [float(w) for w in self.room.abs_weights]},
+                     "abs_weights": [float(w) for w in self.room.abs_weights]},  # = Room.to_dict()
             "snr_db": self.snr_db,
             "array": {"name": self.array_name, "position": self.array_position.tolist(),
                       "mic_positions": self.mic_positions.tolist()},
@@ -313,6 +313,27 @@ class Scene:
     __hash__ = None  # mutable-looking contents (dicts); scenes are compared, not hashed
 
 
+MAX_ROOM_TRIES = 1000
+
+
+def _sample_room(r: np.random.Generator, dist: SceneDistribution) -> tuple[Room, float]:
+    """T60 and SNR first, then room size and wall weights, redrawn until Sabine's formula can
+    reach the T60 (small T60 in big rooms can need an absorption above 1). Redrawing the room
+    rather than the T60 keeps the T60 distribution exact (grid cells fix it), at the price of
+    slightly favouring smaller rooms at the lowest T60s (about 15 % of the paper's rooms cannot
+    reach 0.2 s; every room reaches 0.3 s)."""
+    t60 = float(r.uniform(*dist.t60))
+    snr = float(r.uniform(*dist.snr))
+    low = max(dist.abs_weights[0], 1e-6)  # Room needs weights > 0
+    for _ in range(MAX_ROOM_TRIES):
+        dims = tuple(float(x) for x in r.uniform(dist.room_min, dist.room_max))
+        weights = tuple(float(w) for w in r.uniform(low, dist.abs_weights[1], 6))
+        if t60 == 0 or Room(dims, 0.0, weights).min_t60() <= t60:
+            return Room(dims, t60, weights), snr
+    raise ConfigError(f"T60 = {t60:g} s is unreachable (Sabine) for rooms between {list(dist.room_min)} and "
+                      f"{list(dist.room_max)} m with absorption weights {list(dist.abs_weights)}")
+
+
 def sample_scene(
     dist: SceneDistribution,
     seed: int,
@@ -330,12 +351,8 @@ def sample_scene(
     array = get_array(array)
     rngs = {name: np.random.default_rng(ss) for name, ss in scene_streams(seed).items()}
 
-    r = rngs["room"]
-    dims = r.uniform(dist.room_min, dist.room_max)
-    t60 = float(r.uniform(*dist.t60))
-    snr = float(r.uniform(*dist.snr))
-    weights = r.uniform(dist.abs_weights[0], dist.abs_weights[1], 6)
-    room = Room(tuple(float(x) for x in dims), t60, tuple(float(w) for w in weights))
+    room, snr = _sample_room(rngs["room"], dist)
+    dims = np.asarray(room.dims)
 
     centre = dims * rngs["array"].uniform(dist.array_fraction_min, dist.array_fraction_max)
 
