@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import importlib.util
 from importlib import metadata
 from typing import Any, Callable, TypeVar
 
@@ -90,11 +91,11 @@ def _import_class(path: str) -> type[Tracker]:
 def resolve_tracker(text: str) -> tuple[type[Tracker], str | None, str]:
     """Parse a ``--tracker`` value into (class, spec, id)."""
     head, sep, rest = text.partition(":")
-    if "." in head and sep:
+    trackers = available_trackers()
+    if sep and head not in trackers and ("." in head or importlib.util.find_spec(head) is not None):
         attr, _, spec = rest.partition(":")
         cls = _import_class(f"{head}:{attr}")
         return cls, spec or None, cls.name or f"{head}:{attr}"
-    trackers = available_trackers()
     if head not in trackers:
         close = difflib.get_close_matches(head, trackers, n=3, cutoff=0.5)
         hint = f"; did you mean {', '.join(close)}?" if close else ""
