@@ -1,0 +1,172 @@
+"""``doabench simulate``: draw one scene, simulate it, write audio, truth and scene description.
+
+Outputs (written into a temporary folder next to ``--out`` that is renamed when complete):
+
+* ``audio.wav``: ``n_mics`` channels at the scene's sample rate, 32-bit float samples exactly as
+  simulated (no normalisation, no clipping);
+* ``truth.csv``: one row per frame (K = 4096, hop = 3072 at 16 kHz, window-centre times):
+  ``time_s, elevation_deg, azimuth_deg, x, y, z, vad`` with the direction in the array frame
+  (elevation = inclination from +z) and vad 1 when more than 2/3 of the frame is voice-active;
+* ``scene.json``: the scene (room, T60, SNR, array position, trajectory, speech chunk, seed), the
+  distribution it was drawn from, the backend and its versions.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from doabench.errors import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "simulate", help="simulate one scene into audio.wav, truth.csv and scene.json",
+        description="Draw one scene (the paper's distribution, a task's, or fixed --t60/--snr), simulate "
+                    "it and write audio.wav (float32, one channel per microphone), truth.csv (per frame) "
+                    "and scene.json into --out. Without LibriSpeech the embedded speech clips are used.")
+    p.add_argument("--task", help="draw from this simulated task's scene distribution and speech corpus")
+    p.add_argument("--t60", type=float, help="fixed reverberation time in seconds (0 = anechoic)")
+    p.add_argument("--snr", type=float, help="fixed signal-to-noise ratio in dB")
+    p.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="seconds of audio (default 20, or the task's); the trajectory keeps its points per second")
+    p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
+    p.add_argument("--device", default=None, help="cpu or cuda (default cpu)")
+    p.add_argument("--librispeech", help="LibriSpeech path (default: $DOABENCH_LIBRISPEECH, else embedded speech)")
+    p.add_argument("--subset", help="LibriSpeech subset when the path holds several (e.g. test-clean)")
+    p.add_argument("--array", default=None, help="array name (nao) or JSON/YAML array file (default nao)")
+    p.add_argument("--out", required=True, help="output folder (must not exist unless --force)")
+    p.add_argument("--force", action="store_true", help="replace an existing output folder")
+    p.set_defaults(func=main)
+
+
+def _task_setup(task_id: str, librispeech: str | None):
+    """(distribution, speech source, array name) of a simulated task."""
+    from doabench.acoustics.scenes import SceneDistribution
+
+    try:
+        from doabench.envs.registry import get_task_spec
+    except ImportError:
+        raise ConfigError("--task needs the task registry (doabench.envs.registry), which is not installed") from None
+    spec = get_task_spec(task_id)
+    if spec.kind != "simulated":
+        raise ConfigError(f"task {spec.id!r} is a {spec.kind} task; simulate needs a simulated task")
+    if "cells" in spec.params:
+        raise ConfigError(f"task {spec.id!r} is a grid; simulate one of its cells (doabench list tasks)")
+    dist = getattr(spec, "scene_distribution", None) or SceneDistribution.from_dict(dict(spec.params.get("scene", {})))
+    speech = dict(spec.params.get("speech", {}))
+    if speech.get("corpus", "embedded") == "embedded":
+        from doabench.acoustics.speech import EmbeddedSpeechSource
+
+        source = EmbeddedSpeechSource()
+    else:
+        from doabench.acoustics.speech import LibriSpeechSource
+
+        source = LibriSpeechSource(librispeech, speech.get("subset"))
+    return dist, source, spec.array
+
+
+def build_distribution(args: argparse.Namespace):
+    """The scene distribution, speech source and array the arguments ask for."""
+    from doabench.acoustics.scenes import SceneDistribution
+    from doabench.acoustics.speech import LibriSpeechSource, get_speech_source
+
+    if args.task:
+        dist, source, array = _task_setup(args.task, args.librispeech)
+        if args.librispeech and args.subset:
+            source = LibriSpeechSource(args.librispeech, args.subset)
+    else:
+        dist, source, array = SceneDistribution(), get_speech_source(args.librispeech, args.subset), "nao"
+    changes = {}
+    for name, value in (("t60", args.t60), ("snr", args.snr)):
+        if value is not None:
+            if not math.isfinite(value):
+                raise ConfigError(f"--{name} must be a finite number, got {value}")
+            changes[name] = (value, value)
+    if args.duration is not None:
+        if not (math.isfinite(args.duration) and args.duration > 0):
+            raise ConfigError(f"--duration must be a positive number of seconds, got {args.duration}")
+        changes["duration_s"] = args.duration
+        changes["n_points"] = max(1, round(dist.n_points * args.duration / dist.duration_s))
+    return dist.replace(**changes) if changes else dist, source, args.array or array
+
+
+def write_outputs(folder: Path, episode, scene_info: dict) -> None:
+    """Write audio.wav, truth.csv and scene.json into ``folder``."""
+    import soundfile as sf
+
+    from doabench.framing import FrameSpec
+
+    sf.write(str(folder / "audio.wav"), episode.audio.T, episode.fs, subtype="FLOAT")
+    frames = FrameSpec(fs=episode.fs)
+    truth = episode.frame_truth(frames)
+    with open(folder / "truth.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time_s", "elevation_deg", "azimuth_deg", "x", "y", "z", "vad"])
+        for t, el, az, d, v in zip(truth["times"], np.degrees(truth["elevation"]), np.degrees(truth["azimuth"]),
+                                   truth["directions"], truth["vad"]):
+            w.writerow([f"{t:.6f}", f"{el:.4f}", f"{az:.4f}", f"{d[0]:.6f}", f"{d[1]:.6f}", f"{d[2]:.6f}", int(v)])
+    info = dict(scene_info, frames=frames.to_dict(),
+                audio={"file": "audio.wav", "fs": episode.fs, "channels": episode.n_mics, "subtype": "FLOAT"})
+    (folder / "scene.json").write_text(json.dumps(info, indent=1) + "\n")
+
+
+def _publish(tmp: Path, out: Path, force: bool) -> None:
+    """Move the finished ``tmp`` folder to ``out`` (replacing it only with ``force``)."""
+    if out.exists():
+        if out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        elif not force:
+            raise ConfigError(f"output folder {out} already exists; use --force to replace it")
+        else:
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+            out.replace(old / out.name)
+            tmp.replace(out)
+            shutil.rmtree(old, ignore_errors=True)
+            return
+    tmp.replace(out)
+
+
+def main(args: argparse.Namespace) -> int:
+    from doabench import __version__
+    from doabench.acoustics.render import render_scene
+    from doabench.acoustics.scenes import sample_scene
+    from doabench.acoustics.simulators import get_simulator
+    from doabench.arrays import get_array
+
+    if args.seed < 0:
+        raise ConfigError(f"--seed must be >= 0, got {args.seed}")
+    out = Path(args.out)
+    if out.exists() and not args.force and not (out.is_dir() and not any(out.iterdir())):
+        raise ConfigError(f"output folder {out} already exists; use --force to replace it")
+    dist, source, array_name = build_distribution(args)
+    array = get_array(array_name)
+    simulator = get_simulator(args.backend, device=args.device)
+    scene = sample_scene(dist, args.seed, source, array=array)
+    episode = render_scene(scene, source, array, simulator=simulator, device=args.device)
+    meta = episode.metadata
+    info = {"doabench_version": __version__, "task": args.task, "seed": args.seed, **meta,
+            "distribution": dist.to_dict(), "array": array.to_dict()}
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    try:
+        write_outputs(tmp, episode, info)
+        _publish(tmp, out, args.force)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    kind = "static" if scene.static else "moving"
+    print(f"wrote {out}{os.sep}: audio.wav ({episode.n_mics} ch, {episode.n_samples / episode.fs:g} s, float32), "
+          f"truth.csv, scene.json | room {'x'.join(f'{d:.2f}' for d in scene.room.dims)} m, "
+          f"T60 {scene.room.t60:.2f} s, SNR {scene.snr_db:.1f} dB, {kind} source, {meta['backend']} backend, "
+          f"{scene.speech['corpus']} speech")
+    return 0
