@@ -70,8 +70,9 @@ class SimulatedEpisodes:
     """Episodes of a ``simulated`` task (a single distribution, a grid cell, or a whole grid)."""
 
     def __init__(self, spec: TaskSpec, librispeech: str | None = None, backend: str = "builtin",
-                 device: str | None = None, **_: Any) -> None:
-        from doabench.acoustics.scenes import SceneDistribution
+                 device: str | None = None, scene_overrides: dict[str, Any] | None = None, **_: Any) -> None:
+        """``scene_overrides`` replaces scene-distribution fields of every cell (e.g.
+        ``{"duration_s": 3}`` for quick checks); results record it, and it changes the episodes."""
         from doabench.acoustics.simulators import get_simulator
 
         self.spec = spec
@@ -83,12 +84,18 @@ class SimulatedEpisodes:
             from doabench.envs.registry import get_task_spec
 
             cells = [get_task_spec(c) for c in spec.params["cells"]]
-            self._cells = [(c.params["cell"]["index"], SceneDistribution.from_dict(dict(c.params.get("scene", {}))),
-                            c) for c in cells]
+            self._cells = [(c.params["cell"]["index"], self._distribution(c, scene_overrides), c) for c in cells]
         else:
             cell = spec.params.get("cell", {}).get("index")
-            self._cells = [(cell, SceneDistribution.from_dict(dict(spec.params.get("scene", {}))), spec)]
+            self._cells = [(cell, self._distribution(spec, scene_overrides), spec)]
+        self.scene_overrides = dict(scene_overrides or {})
         self._per_cell = spec.episodes // len(self._cells)
+
+    @staticmethod
+    def _distribution(spec: TaskSpec, overrides: dict[str, Any] | None):
+        from doabench.acoustics.scenes import SceneDistribution
+
+        return SceneDistribution.from_dict({**dict(spec.params.get("scene", {})), **(overrides or {})})
 
     def __len__(self) -> int:
         return self._per_cell * len(self._cells)
@@ -118,7 +125,7 @@ class SimulatedEpisodes:
 
     def describe(self) -> dict[str, Any]:
         return {"simulator": self.simulator.name, "simulator_versions": self.simulator.versions(),
-                "speech": dict(self.spec.params.get("speech", {}))}
+                "speech": dict(self.spec.params.get("speech", {})), "scene_overrides": self.scene_overrides}
 
 
 register_task_kind("simulated", SimulatedEpisodes)

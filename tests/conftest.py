@@ -1,0 +1,17 @@
+"""Shared fixtures: paths to the optional real data in ../shared/data (tests skip without it)."""
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_LIBRISPEECH = ROOT.parent / "shared" / "data" / "LibriSpeech"
+
+# Short scenes keep environment tests fast; the scene rate of 156 points per 20 s is kept.
+QUICK_SCENE = {"duration_s": 3.0, "n_points": 24}
+
+
+@pytest.fixture
+def librispeech_root() -> Path:
+    if not (SHARED_LIBRISPEECH / "test-other").is_dir():
+        pytest.skip(f"real LibriSpeech subset not found at {SHARED_LIBRISPEECH}")
+    return SHARED_LIBRISPEECH

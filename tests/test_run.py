@@ -1,0 +1,122 @@
+"""Environments and `doabench run`: Gymnasium compliance, determinism, plugins, sanity scores."""
+import json
+import sys
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import doabench
+from doabench.cli.main import main
+from doabench.envs.env import DoaEnv
+from doabench.errors import TrackerError
+from doabench.runner import run_task
+
+from conftest import QUICK_SCENE, ROOT
+
+
+def _sim_tasks():
+    return [t for t, s in doabench.available_tasks().items() if s.kind == "simulated"]
+
+
+@pytest.mark.parametrize("task_id", _sim_tasks())
+def test_check_env_passes_for_every_simulated_task(task_id, librispeech_root):
+    env = gymnasium.make(doabench.get_task_spec(task_id).gym_id, features=("srp", "srp_max", "gcc"),
+                         resolution=(4, 8), librispeech=str(librispeech_root), scene_overrides=QUICK_SCENE)
+    check_env(env.unwrapped, skip_render_check=True)
+
+
+def test_reset_with_seed_is_deterministic_and_truth_comes_after_the_step():
+    env = gymnasium.make("doabench/sim-demo-v0", features=("srp", "gcc"), resolution=(8, 16),
+                         scene_overrides=QUICK_SCENE)
+    obs1, info1 = env.reset(seed=7)
+    obs2, info2 = env.reset(seed=7)
+    assert info1["episode"] == info2["episode"]
+    for k in obs1:
+        np.testing.assert_array_equal(obs1[k], obs2[k])
+    assert "truth" not in info1
+    _, reward, terminated, truncated, info = env.step(np.array([1.0, 0.0, 0.0], np.float32))
+    assert info["truth"].shape == (3,) and reward == pytest.approx(-info["error_rad"])
+    # a second environment renders the same episode bit for bit
+    other = DoaEnv("sim-demo", features=("srp",), resolution=(8, 16), scene_overrides=QUICK_SCENE)
+    o, _ = other.reset(options={"episode": info1["episode"]})
+    np.testing.assert_array_equal(o["srp"], obs1["srp"])
+
+
+def test_episode_streams_one_frame_per_step_until_terminated():
+    env = DoaEnv("sim-demo", features=("srp",), resolution=(4, 8), scene_overrides=QUICK_SCENE)
+    obs, info = env.reset(options={"episode": 0})
+    n = info["n_frames"]
+    assert n == 1 + (3 * 16000 - 4096) // 3072
+    steps, terminated = 0, False
+    while not terminated:
+        obs, _, terminated, _, _ = env.step(np.array([0.0, 0.0, 1.0]))
+        steps += 1
+    assert steps == n
+    with pytest.raises(gymnasium.error.ResetNeeded):
+        env.step(np.array([0.0, 0.0, 1.0]))
+
+
+class _NaNTracker(doabench.Tracker):
+    name = "nan-tracker"
+
+    def step(self, observation):
+        return np.array([np.nan, 0.0, 0.0])
+
+
+class _WrongShapeTracker(doabench.Tracker):
+    name = "wrong-shape"
+
+    def step(self, observation):
+        return np.zeros(2)
+
+
+@pytest.mark.parametrize("tracker,message", [(_NaNTracker(), "nan-tracker.*non-finite"),
+                                             (_WrongShapeTracker(), r"wrong-shape.*shape \(2,\)")])
+def test_misbehaving_tracker_is_stopped_with_its_name(tracker, message):
+    with pytest.raises(TrackerError, match=message):
+        run_task(tracker, "sim-demo", episodes=1, progress=False, scene_overrides=QUICK_SCENE)
+
+
+def test_docs_example_tracker_runs_from_outside_the_package(tmp_path, monkeypatch, capsys):
+    monkeypatch.syspath_prepend(str(ROOT / "docs" / "examples"))
+    code = main(["run", "--tracker", "centroid_tracker:CentroidTracker", "--tracker-opt", "top=3",
+                 "--task", "sim-demo", "--episodes", "1", "--out", str(tmp_path), "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    results = json.loads(next(tmp_path.glob("*.json")).read_text())
+    assert results["tracker"]["name"] == "srp-centroid"
+    assert results["summary"]["rmsae_nonsilent"] < 60
+    assert {"rmsae_all", "rmsae_nonsilent"} <= set(results["summary"])
+    assert results["environment"]["git"]["commit"] is None or len(results["environment"]["git"]["commit"]) == 40
+    assert not list(tmp_path.glob(".*partial*"))  # the resume file is gone after success
+    csv = next(tmp_path.glob("*.csv")).read_text().splitlines()
+    assert len(csv) == 2 and "rmsae_all" in csv[0]
+
+
+def test_run_resumes_from_partial_file(tmp_path):
+    partial = tmp_path / "p.jsonl"
+    seen = []
+    first = run_task("srp-max:4x8", "sim-demo", episodes=2, progress=lambda i, r: seen.append(i),
+                     partial_path=partial, scene_overrides=QUICK_SCENE)
+    assert seen == [0, 1]
+    seen.clear()
+    again = run_task("srp-max:4x8", "sim-demo", episodes=2, progress=lambda i, r: seen.append(i),
+                     partial_path=partial, scene_overrides=QUICK_SCENE)
+    assert seen == []  # both episodes came from the partial file
+    assert again["summary"]["rmsae_all"] == first["summary"]["rmsae_all"]
+
+
+def test_bad_ids_exit_nonzero_without_results(tmp_path, capsys):
+    assert main(["run", "--tracker", "srp-max", "--task", "sim-t60-0.9-snr-55", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown task" in err and "sim-t60-0.9-snr-5" in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_srp_max_sanity_bound_on_low_reverb_cell(librispeech_root):
+    """srp-max at 32x64 on sim-t60-0.3-snr-30 (two 20 s episodes): RMSAE on non-silent frames < 15 deg."""
+    res = run_task("srp-max:32x64", "sim-t60-0.3-snr-30", episodes=2, progress=False,
+                   librispeech=str(librispeech_root))
+    assert res["summary"]["rmsae_nonsilent"] < 15.0, res["summary"]
