@@ -1,0 +1,381 @@
+"""The builtin room impulse response engine: image sources plus a diffuse tail, in torch.
+
+Model (details and rationale in docs/simulation.md, "Room impulse responses"):
+
+* **Early part, ``[0, Tdiff)``**: the image-source method of Allen & Berkley (1979) for a
+  shoebox with six reflection coefficients. Every image within reach contributes
+  ``prod(beta) / (4 pi d)`` at delay ``d / c``, band-limited by a Hann-windowed sinc centred on
+  the exact (fractional) arrival time; the window spans +-(SINC_HALF + 1) samples, so an image
+  touches 2 * SINC_HALF + 1 = 33 samples (34 when the delay is fractional). No high-pass filter.
+* **Diffuse tail, ``[Tdiff, Tmax)``**: Gaussian noise, independent for every (source point, mic)
+  pair, with a power envelope ``A**2 * exp(-ln(10**6) t / T60)`` (60 dB per T60). ``A**2`` is
+  fitted to the energy of the image-source part in ``[Tdiff / 2, Tdiff)`` (the direct sound
+  excluded) so the tail continues the ISM's energy envelope.
+
+Speed: the sinc is not evaluated per image. Images are accumulated (linear interpolation) into
+an OVERSAMPLE-times finer grid stored as OVERSAMPLE polyphase rows, and one strided convolution
+applies the matching windowed-sinc phase to each row. This turns 34 scattered writes per image
+into 2, and the sinc into a dense, batched convolution.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from doabench.acoustics.room import Room
+from doabench.geometry import SPEED_OF_SOUND
+
+SINC_HALF = 16  # windowed-sinc half length in samples (pyroomacoustics frac_delay_length = 33)
+OVERSAMPLE = 8  # fractional-delay grid: 1/8 sample, linear interpolation in between
+_BLOCK = 16  # outputs per strided-convolution step (speed only; results do not depend on it)
+_TAIL_FIT_MIN_SAMPLES = 32  # below this many usable ISM samples the tail level is theoretical
+_CHUNK_ELEMENTS = 3_000_000  # bounds the temporaries of one chunk of trajectory points
+
+
+# --------------------------------------------------------------------------------------------
+# small helpers
+
+
+def resolve_device(device: str | torch.device | None) -> torch.device:
+    return torch.device("cpu") if device is None else torch.device(device)
+
+
+def make_generator(seed: int | torch.Generator | None, device: torch.device) -> torch.Generator:
+    """A generator on ``device``: ``seed`` as is when it is one, else seeded with ``seed``
+    (a fresh random seed when None)."""
+    if isinstance(seed, torch.Generator):
+        return seed
+    if seed is None:
+        seed = int(np.random.SeedSequence().generate_state(1, np.uint64)[0] >> 1)
+    gen = torch.Generator(device=device)
+    gen.manual_seed(int(seed))
+    return gen
+
+
+def accumulate_(buffer: torch.Tensor, index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """``buffer.view(-1)[index] += values`` summing duplicates, deterministically.
+
+    CPU ``index_add_`` adds in index order; on CUDA ``index_add_`` uses atomics (order varies),
+    while ``index_put_(accumulate=True)`` sorts first, which keeps same-seed runs bitwise equal.
+    """
+    flat = buffer.view(-1)
+    if flat.is_cuda:
+        flat.index_put_((index,), values, accumulate=True)
+    else:
+        flat.index_add_(0, index, values)
+    return buffer
+
+
+def windowed_sinc(t: np.ndarray, half: int = SINC_HALF) -> np.ndarray:
+    """Hann-windowed sinc at times ``t`` (samples, any shape); zero for ``|t| >= half + 1``."""
+    t = np.asarray(t, dtype=np.float64)
+    width = half + 1.0
+    w = 0.5 * (1.0 + np.cos(np.pi * t / width))
+    return np.where(np.abs(t) < width, np.sinc(t) * w, 0.0)
+
+
+def _polyphase_kernel(half: int, over: int, block: int) -> np.ndarray:
+    """Weights ``(block, over, block + 2 half + 1)`` of the strided convolution.
+
+    Input row ``r``, column ``j`` (after ``half + 1`` samples of left padding) holds the impulses
+    at time ``j - half - 1 + r / over``; output ``s`` of a block is sample ``s`` of that block.
+    """
+    s = np.arange(block)[:, None, None]
+    r = np.arange(over)[None, :, None]
+    j = np.arange(block + 2 * half + 1)[None, None, :]
+    return windowed_sinc(s + half + 1 - j - r / over, half)
+
+
+_KERNELS: dict[tuple, torch.Tensor] = {}
+
+
+def _kernel(device: torch.device) -> torch.Tensor:
+    key = (str(device), SINC_HALF, OVERSAMPLE, _BLOCK)
+    if key not in _KERNELS:
+        k = _polyphase_kernel(SINC_HALF, OVERSAMPLE, _BLOCK)
+        _KERNELS[key] = torch.as_tensor(k, dtype=torch.float32, device=device)
+    return _KERNELS[key]
+
+
+# --------------------------------------------------------------------------------------------
+# image enumeration (per room, reused for every source point and microphone)
+
+
+@dataclass(frozen=True)
+class ImageSet:
+    """Image sources of a shoebox room, independent of the source position.
+
+    Image ``i`` of a source at ``s`` sits at ``offset[i] + sign[i] * s`` and its amplitude factor
+    is ``gain[i]`` (product of the reflection coefficients of the walls it reflects on, ``order[i]``
+    reflections in all). Arrays: ``sign``, ``offset`` ``(I, 3)``; ``gain`` ``(I,)`` float64;
+    ``order`` ``(I,)`` int64.
+    """
+
+    sign: np.ndarray
+    offset: np.ndarray
+    gain: np.ndarray
+    order: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.gain.shape[0])
+
+
+def enumerate_images(room: Room, horizon: float) -> ImageSet:
+    """Every image that can be closer than ``horizon`` metres to some point of the room.
+
+    Per axis of length L, image ``(u, l)`` (u in {0, 1}, l integer) has coordinate
+    ``2 l L + (1 - 2u) x`` and reflects ``|l - u|`` times on the wall at 0 and ``|l|`` times on the
+    wall at L (Allen & Berkley). Images whose distance from *any* pair of points in the room
+    exceeds ``horizon`` are dropped, as are images with zero gain (walls with beta = 0).
+    """
+    beta = room.reflection_coefficients()
+    axes = []
+    for axis, length in enumerate(room.dims):
+        n = int(math.ceil(horizon / (2.0 * length))) + 1
+        l = np.repeat(np.arange(-n, n + 1), 2)
+        u = np.tile(np.array([0, 1]), 2 * n + 1)
+        sign = 1.0 - 2.0 * u
+        offset = 2.0 * l * length
+        k0, k1 = np.abs(l - u), np.abs(l)
+        gain = np.power(beta[2 * axis], k0) * np.power(beta[2 * axis + 1], k1)
+        lo = np.where(sign > 0, offset, offset - length)  # the image coordinate's range over
+        hi = lo + length  # sources in [0, L], and the mic's range is [0, L] too
+        lower = np.maximum(0.0, np.maximum(lo - length, -hi))
+        keep = (lower <= horizon) & (gain > 0)
+        axes.append((sign[keep], offset[keep], gain[keep], (k0 + k1)[keep], lower[keep]))
+    (sx, ox, gx, kx, bx), (sy, oy, gy, ky, by), (sz, oz, gz, kz, bz) = axes
+    ix, iy, iz = np.meshgrid(np.arange(len(sx)), np.arange(len(sy)), np.arange(len(sz)), indexing="ij")
+    ix, iy, iz = ix.ravel(), iy.ravel(), iz.ravel()
+    keep = bx[ix] ** 2 + by[iy] ** 2 + bz[iz] ** 2 <= horizon**2
+    ix, iy, iz = ix[keep], iy[keep], iz[keep]
+    return ImageSet(
+        sign=np.stack([sx[ix], sy[iy], sz[iz]], 1),
+        offset=np.stack([ox[ix], oy[iy], oz[iz]], 1),
+        gain=gx[ix] * gy[iy] * gz[iz],
+        order=(kx[ix] + ky[iy] + kz[iz]).astype(np.int64),
+    )
+
+
+def direct_images() -> ImageSet:
+    """Only the source itself (free field)."""
+    return ImageSet(np.ones((1, 3)), np.zeros((1, 3)), np.ones(1), np.zeros(1, dtype=np.int64))
+
+
+# --------------------------------------------------------------------------------------------
+# lengths
+
+
+@dataclass(frozen=True)
+class RirLayout:
+    """Sample counts of one batch of RIRs: ``n_diff`` (tail start, Tdiff), ``n_early`` (end of the
+    image-source part; Tdiff, or later when the direct sound itself arrives after Tdiff) and
+    ``n_taps`` (total length, Tmax)."""
+
+    n_diff: int
+    n_early: int
+    n_taps: int
+
+
+def rir_layout(room: Room | None, max_direct_delay: float, fs: int) -> RirLayout:
+    """Lengths for a batch whose longest direct path takes ``max_direct_delay`` samples."""
+    direct_end = int(math.ceil(max_direct_delay)) + SINC_HALF + 2
+    if room is None or room.t60 == 0:
+        return RirLayout(0, direct_end, direct_end)
+    n_diff = int(round(room.diffuse_start() * fs))
+    n_early = max(n_diff, direct_end)
+    return RirLayout(n_diff, n_early, max(int(round(room.max_time() * fs)), n_early))
+
+
+def direct_delays(sources: torch.Tensor, mics: torch.Tensor, fs: int) -> torch.Tensor:
+    """Direct-path delays ``(S, M)`` in samples."""
+    return torch.cdist(sources.double(), mics.double()) * (fs / SPEED_OF_SOUND)
+
+
+# --------------------------------------------------------------------------------------------
+# the early (image-source) part
+
+
+def render_images(
+    images: ImageSet,
+    sources: torch.Tensor,
+    mics: torch.Tensor,
+    fs: int,
+    n_out: int,
+) -> torch.Tensor:
+    """Band-limited image-source responses, ``(P, M, n_out)`` float32 on the sources' device.
+
+    ``sources`` ``(P, 3)`` and ``mics`` ``(M, 3)`` float tensors (room coordinates, metres). Images
+    that cannot reach sample ``n_out`` are skipped. Memory grows with ``P``; callers chunk.
+    """
+    device = sources.device
+    P, M = sources.shape[0], mics.shape[0]
+    if P == 0 or n_out == 0:
+        return torch.zeros(P, M, n_out, device=device)
+    half, over, block = SINC_HALF, OVERSAMPLE, _BLOCK
+    n_blocks = -(-n_out // block)
+    n_buf = n_blocks * block + half + 1  # polyphase buffer columns (see _polyphase_kernel)
+    horizon = float(n_out + half)  # samples: later images only touch samples >= n_out
+    to_samples = fs / SPEED_OF_SOUND
+
+    f32 = dict(dtype=torch.float32, device=device)
+    sign = torch.as_tensor(images.sign, **f32)
+    offset = torch.as_tensor(images.offset, **f32)
+    gain = torch.as_tensor(images.gain / (4.0 * math.pi), **f32)
+    src = sources.to(torch.float32)
+    mic = mics.to(torch.float32)
+
+    # Keep (point, image) pairs within reach of the array's bounding sphere: cheap (P, I) work
+    # that spares the (P, I, M) work for the images only far microphones could hear.
+    centre = mic.mean(0)
+    radius = float((mic - centre).norm(dim=1).max()) + horizon / to_samples
+    d_centre = torch.zeros(P, len(images), **f32)
+    for a in range(3):
+        d_centre += (offset[None, :, a] + sign[None, :, a] * src[:, None, a] - centre[a]) ** 2
+    p_idx, i_idx = (d_centre <= radius * radius).nonzero(as_tuple=True)
+    del d_centre
+    pos = offset[i_idx] + sign[i_idx] * src[p_idx]  # (K, 3)
+
+    # (M, K) layout: consecutive writes go to one (point, mic) row, which stays in cache.
+    dist = torch.cdist(mic, pos)  # (M, K)
+    amp = gain[i_idx][None] / dist.clamp_min(1e-6)
+    t = dist * (to_samples * over)  # arrival in 1/over samples
+    q = torch.floor(t)
+    frac = t - q
+    q = q.to(torch.int64)
+    valid = t < horizon * over
+    q = torch.where(valid, q, torch.zeros_like(q))
+    amp = torch.where(valid, amp, torch.zeros_like(amp))
+    row = p_idx[None] * M + torch.arange(M, device=device)[:, None]  # (M, K) output row
+    base = row * (over * n_buf)
+    buf = torch.zeros(P * M, over, n_buf, **f32)
+    for qq, w in ((q, amp * (1.0 - frac)), (q + 1, amp * frac)):
+        accumulate_(buf, (base + (qq % over) * n_buf + qq // over).reshape(-1), w.reshape(-1))
+    del dist, amp, t, q, frac, valid, row, base
+
+    buf = F.pad(buf, (half + 1, 0))
+    out = F.conv1d(buf, _kernel(device), stride=block)  # (P*M, block, n_blocks)
+    return out.transpose(1, 2).reshape(P, M, n_blocks * block)[..., :n_out]
+
+
+# --------------------------------------------------------------------------------------------
+# the diffuse tail
+
+
+def decay_rate(t60: float) -> float:
+    """Energy decay rate in 1/s: power falls 60 dB (10**6) in ``t60`` seconds."""
+    return math.log(1e6) / t60
+
+
+def tail_level(
+    early: torch.Tensor, room: Room, fs: int, layout: RirLayout, delays: torch.Tensor
+) -> torch.Tensor:
+    """``A**2`` ``(P, M)``: the tail's power envelope at t = 0 so that ``A**2 exp(-k t)`` matches
+    the energy of ``early`` ``(P, M, n_early)`` over ``[Tdiff/2, Tdiff)``, skipping everything up
+    to ``SINC_HALF + 1`` samples after the direct sound (``delays`` ``(P, M)`` samples).
+
+    Where fewer than 32 samples are usable (the direct sound arrives at about Tdiff) the level is
+    the diffuse-field expectation of the image-source model, ``c / (4 pi V fs)``: images fill
+    space with density ``1 / V`` and each contributes ``(gain / (4 pi d))**2``.
+    """
+    k = decay_rate(room.t60)
+    start, stop = layout.n_diff // 2, layout.n_diff
+    n = torch.arange(start, stop, device=early.device, dtype=torch.float64)
+    usable = n[None, None] > (delays[..., None] + SINC_HALF + 1)  # (P, M, W)
+    env = torch.exp(-k * n / fs)
+    energy = (early[..., start:stop].double() ** 2 * usable).sum(-1)
+    expected = (env * usable).sum(-1)
+    theory = torch.full_like(energy, SPEED_OF_SOUND / (4 * math.pi * room.volume * fs))
+    fitted = energy / expected.clamp_min(1e-300)
+    return torch.where(usable.sum(-1) >= _TAIL_FIT_MIN_SAMPLES, fitted, theory)
+
+
+def add_diffuse_tail(
+    early: torch.Tensor,
+    room: Room,
+    fs: int,
+    layout: RirLayout,
+    delays: torch.Tensor,
+    generator: torch.Generator,
+) -> torch.Tensor:
+    """Full RIRs ``(P, M, n_taps)`` float32: ``early`` ``(P, M, n_early)`` plus independent
+    exponentially decaying Gaussian noise on ``[n_diff, n_taps)`` for every (point, mic) pair.
+
+    Draws ``P * M * (n_taps - n_diff)`` normals from ``generator`` (on ``early``'s device).
+    """
+    P, M, _ = early.shape
+    out = torch.zeros(P, M, layout.n_taps, dtype=torch.float32, device=early.device)
+    out[..., : layout.n_early] = early[..., : layout.n_early]
+    if room.t60 == 0 or layout.n_taps <= layout.n_diff:
+        return out
+    level = tail_level(early, room, fs, layout, delays)  # (P, M)
+    n = torch.arange(layout.n_diff, layout.n_taps, device=early.device, dtype=torch.float64)
+    env = torch.exp(-0.5 * decay_rate(room.t60) * n / fs)  # amplitude envelope
+    scale = (level.sqrt()[..., None] * env).to(torch.float32)
+    noise = torch.randn(
+        P, M, layout.n_taps - layout.n_diff, generator=generator, device=early.device, dtype=torch.float32
+    )
+    out[..., layout.n_diff :] += noise * scale
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# the whole engine
+
+
+def _points_per_chunk(room: Room | None, n_mics: int, n_images: int, layout: RirLayout, fs: int) -> int:
+    """Points per chunk so that one chunk's largest temporaries stay near _CHUNK_ELEMENTS."""
+    reach = (layout.n_early + SINC_HALF) / fs * SPEED_OF_SOUND
+    heard = n_images if room is None else min(n_images, 4.2 * reach**3 / room.volume + 1)
+    per_point = max(
+        n_images,  # (P, I) pruning distances
+        n_mics * heard,  # (M, K) per-image work
+        n_mics * OVERSAMPLE * (layout.n_early + SINC_HALF + 2 * _BLOCK),  # polyphase buffer
+        n_mics * layout.n_taps,  # output
+    )
+    return max(1, int(_CHUNK_ELEMENTS // per_point))
+
+
+def image_source_rirs(
+    room: Room,
+    sources: torch.Tensor,
+    mics: torch.Tensor,
+    fs: int,
+    generator: torch.Generator,
+) -> torch.Tensor:
+    """RIRs ``(S, M, n_taps)`` float32 from ``sources`` ``(S, 3)`` to ``mics`` ``(M, 3)`` (tensors
+    on the device to compute on, room coordinates, already validated).
+
+    Points are processed in chunks, in order; the tail noise of chunk ``c`` is drawn from
+    ``generator`` after chunk ``c - 1``'s, so equal inputs and seed give equal outputs.
+    """
+    delays = direct_delays(sources, mics, fs)
+    layout = rir_layout(room, float(delays.max()) if delays.numel() else 0.0, fs)
+    horizon_m = (layout.n_early + SINC_HALF) / fs * SPEED_OF_SOUND
+    images = enumerate_images(room, horizon_m) if room.t60 > 0 else direct_images()
+    S, M = sources.shape[0], mics.shape[0]
+    out = torch.empty(S, M, layout.n_taps, dtype=torch.float32, device=sources.device)
+    step = _points_per_chunk(room, M, len(images), layout, fs)
+    for p0 in range(0, S, step):
+        p1 = min(S, p0 + step)
+        early = render_images(images, sources[p0:p1], mics, fs, layout.n_early)
+        out[p0:p1] = add_diffuse_tail(early, room, fs, layout, delays[p0:p1], generator)
+    return out
+
+
+def direct_rirs(sources: torch.Tensor, mics: torch.Tensor, fs: int) -> torch.Tensor:
+    """Free-field direct-path responses ``(S, M, n_taps)`` float32: ``1 / (4 pi r)`` at delay
+    ``r / c`` with the same windowed sinc as the image-source part."""
+    delays = direct_delays(sources, mics, fs)
+    layout = rir_layout(None, float(delays.max()) if delays.numel() else 0.0, fs)
+    images = direct_images()
+    S, M = sources.shape[0], mics.shape[0]
+    out = torch.empty(S, M, layout.n_taps, dtype=torch.float32, device=sources.device)
+    step = _points_per_chunk(None, M, 1, layout, fs)
+    for p0 in range(0, S, step):
+        p1 = min(S, p0 + step)
+        out[p0:p1] = render_images(images, sources[p0:p1], mics, fs, layout.n_taps)
+    return out

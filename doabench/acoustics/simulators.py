@@ -1,0 +1,392 @@
+"""Room simulators: one interface, three backends, one trajectory convolution.
+
+* ``builtin`` (default): doabench's torch image-source engine (:mod:`doabench.acoustics.rir`),
+  CPU or CUDA.
+* ``pyroomacoustics``: the same model through ``pyroomacoustics.ShoeBox`` (its image sources and
+  fractional delays, our diffuse tail); the trusted reference and fallback.
+* ``gpurir``: a thin wrapper of gpuRIR, the library the Cross3D paper used, when it is importable.
+
+Every backend returns RIRs ``(S, M, n_taps)`` for ``S`` source points and ``M`` microphones, and
+simulates a moving source the way gpuRIR's ``simulateTrajectory`` does: the signal is cut into
+``S`` consecutive segments (:func:`segment_bounds`), segment ``i`` is convolved with the RIRs of
+point ``i`` and the results are overlap-added.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import torch
+from scipy.fft import next_fast_len
+
+from doabench.acoustics import rir as engine
+from doabench.acoustics.room import Room, check_inside
+from doabench.errors import ConfigError, DependencyError, InputError, NotFoundError
+
+_MIN_SOURCE_MIC_DISTANCE = 1e-3  # metres; 1 / (4 pi r) blows up at the microphone
+_OLA_CHUNK_ELEMENTS = 8_000_000  # bounds the (points, mics, nfft) spectra held at once
+
+
+@runtime_checkable
+class Simulator(Protocol):
+    """What every backend provides. Positions are room coordinates in metres."""
+
+    name: str
+
+    def versions(self) -> dict[str, str]:
+        """Backend, library versions and pinned settings, for provenance."""
+
+    def rirs(
+        self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, *, seed=None
+    ) -> np.ndarray:
+        """RIRs ``(S, M, n_taps)`` float32 from ``sources`` ``(S, 3)`` to ``mics`` ``(M, 3)``."""
+
+    def simulate(
+        self, room: Room, sources: np.ndarray, mics: np.ndarray, signal: np.ndarray, fs: int, *, seed=None
+    ) -> np.ndarray:
+        """Microphone signals ``(M, L)`` float32 of ``signal`` ``(L,)`` moving along ``sources``
+        ``(S, 3)`` (S == 1: static)."""
+
+
+# --------------------------------------------------------------------------------------------
+# validation
+
+
+def _check_fs(fs) -> int:
+    if isinstance(fs, bool) or not isinstance(fs, (int, np.integer)) or fs <= 0:
+        raise ConfigError(f"sample rate must be a positive integer number of Hz, got {fs!r}")
+    return int(fs)
+
+
+def _points(room: Room | None, points, what: str) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim == 1 and p.shape == (3,):
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
+        raise ConfigError(f"{what} positions must have shape (N, 3) with N >= 1, got {np.shape(points)}")
+    if room is None:
+        if not np.all(np.isfinite(p)):
+            i = int(np.argmax(~np.all(np.isfinite(p), axis=1)))
+            raise ConfigError(f"{what} {i + 1} is not finite")
+        return p
+    return check_inside(room, p, what)
+
+
+def prepare_geometry(room: Room | None, sources, mics, fs) -> tuple[np.ndarray, np.ndarray, int]:
+    """Validate and return ``sources (S, 3)``, ``mics (M, 3)`` float64 and ``fs``."""
+    if room is not None and not isinstance(room, Room):
+        raise ConfigError(f"room must be a doabench.acoustics.room.Room, got {type(room).__name__}")
+    fs = _check_fs(fs)
+    src = _points(room, sources, "source point")
+    mic = _points(room, mics, "array microphone")
+    d = np.linalg.norm(src[:, None] - mic[None], axis=-1)
+    if d.min() < _MIN_SOURCE_MIC_DISTANCE:
+        i, j = np.unravel_index(int(np.argmin(d)), d.shape)
+        raise ConfigError(f"source point {i + 1} is at array microphone {j + 1} (closer than 1 mm)")
+    return src, mic, fs
+
+
+def _signal(signal) -> np.ndarray:
+    x = np.asarray(signal)
+    if x.ndim != 1 or x.size == 0:
+        raise InputError(f"source signal must be 1-D and non-empty, got shape {x.shape}")
+    if not np.issubdtype(x.dtype, np.number) or not np.all(np.isfinite(x)):
+        raise InputError("source signal contains NaN, infinite or non-numeric values")
+    return x.astype(np.float32, copy=False)
+
+
+# --------------------------------------------------------------------------------------------
+# trajectory convolution (shared by every backend)
+
+
+def segment_bounds(n_samples: int, n_points: int) -> np.ndarray:
+    """Sample boundaries ``(n_points + 1,)`` int64: segment ``i`` is
+    ``[b[i], b[i + 1])`` with ``b[i] = floor(i * n_samples / n_points)`` (lengths differ by at
+    most one sample)."""
+    return (np.arange(n_points + 1, dtype=np.int64) * n_samples) // n_points
+
+
+def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor) -> torch.Tensor:
+    """Moving-source convolution, ``(M, L)`` float32 on ``rirs``' device.
+
+    ``rirs`` ``(S, M, N)``, ``signal`` ``(L,)``. Segment ``i`` of the signal (:func:`segment_bounds`)
+    is FFT-convolved with ``rirs[i]`` and added at its start sample; the output keeps the first
+    ``L`` samples. Batched over points and mics, chunked over points to bound memory.
+    """
+    S, M, N = rirs.shape
+    L = signal.shape[-1]
+    device = rirs.device
+    signal = signal.to(device=device, dtype=torch.float32)
+    bounds = segment_bounds(L, S)
+    seg = int(np.diff(bounds).max())
+    nfft = next_fast_len(seg + N - 1, real=True)
+    starts = torch.as_tensor(bounds[:-1], device=device)
+    idx = starts[:, None] + torch.arange(seg, device=device)[None]  # (S, seg)
+    segments = torch.where(
+        idx < torch.as_tensor(bounds[1:], device=device)[:, None],
+        signal[idx.clamp(max=L - 1)],
+        torch.zeros((), device=device),
+    )
+    n_out = int(bounds[-2]) + nfft
+    out = torch.zeros(M, n_out, dtype=torch.float32, device=device)
+    step = max(1, _OLA_CHUNK_ELEMENTS // (M * nfft))
+    cols = torch.arange(nfft, device=device)
+    rows = torch.arange(M, device=device)[:, None, None] * n_out
+    for p0 in range(0, S, step):
+        p1 = min(S, p0 + step)
+        spec = torch.fft.rfft(rirs[p0:p1].to(torch.float32), nfft) * torch.fft.rfft(segments[p0:p1], nfft)[:, None]
+        y = torch.fft.irfft(spec, nfft).transpose(0, 1)  # (M, P, nfft): one row's writes adjoin
+        index = rows + (starts[p0:p1, None] + cols)[None]
+        engine.accumulate_(out, index.reshape(-1), y.reshape(-1))
+    return out[:, :L]
+
+
+def direct_path(
+    room: Room | None,
+    sources: np.ndarray,
+    mics: np.ndarray,
+    signal: np.ndarray,
+    fs: int,
+    *,
+    device: str | torch.device | None = None,
+) -> np.ndarray:
+    """Free-field direct-path signals ``(M, L)`` float32: amplitude ``1 / (4 pi r)``, delay
+    ``r / c`` by the builtin engine's windowed sinc, same segmenting and overlap-add as
+    :meth:`Simulator.simulate`. ``room`` (optional) only validates the positions. Used to set an
+    SNR relative to the direct-path power without a second simulation."""
+    src, mic, fs = prepare_geometry(room, sources, mics, fs)
+    x = _signal(signal)
+    dev = engine.resolve_device(device)
+    h = engine.direct_rirs(torch.as_tensor(src, device=dev), torch.as_tensor(mic, device=dev), fs)
+    return convolve_trajectory(h, torch.as_tensor(x, device=dev)).cpu().numpy()
+
+
+# --------------------------------------------------------------------------------------------
+# backends
+
+
+class _TorchBackend:
+    """Shared ``rirs``/``simulate`` plumbing; subclasses implement ``rirs_tensor``."""
+
+    name = "?"
+    device: torch.device
+
+    def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
+        raise NotImplementedError
+
+    def rirs(self, room: Room, sources, mics, fs: int, *, seed=None) -> np.ndarray:
+        """RIRs ``(S, M, n_taps)`` float32, ``n_taps = round(Tmax fs)`` (direct path only when
+        T60 = 0). ``seed`` (int or torch.Generator) fixes the diffuse-tail noise."""
+        src, mic, fs = prepare_geometry(room, sources, mics, fs)
+        gen = engine.make_generator(seed, self.device)
+        return self.rirs_tensor(room, src, mic, fs, gen).cpu().numpy()
+
+    def simulate(self, room: Room, sources, mics, signal, fs: int, *, seed=None) -> np.ndarray:
+        """Signals ``(M, L)`` float32 of ``signal`` ``(L,)`` moving along ``sources`` ``(S, 3)``;
+        equals :func:`convolve_trajectory` of :meth:`rirs` with the same seed."""
+        src, mic, fs = prepare_geometry(room, sources, mics, fs)
+        x = _signal(signal)
+        gen = engine.make_generator(seed, self.device)
+        h = self.rirs_tensor(room, src, mic, fs, gen)
+        return convolve_trajectory(h, torch.as_tensor(x, device=self.device)).cpu().numpy()
+
+
+class BuiltinSimulator(_TorchBackend):
+    """doabench's torch image-source engine (see :mod:`doabench.acoustics.rir`)."""
+
+    name = "builtin"
+
+    def __init__(self, device: str | torch.device | None = None) -> None:
+        self.device = engine.resolve_device(device)
+
+    def versions(self) -> dict[str, str]:
+        import doabench
+
+        return {
+            "backend": self.name,
+            "doabench": getattr(doabench, "__version__", "unknown"),
+            "torch": torch.__version__,
+            "device": str(self.device),
+            "sinc": f"hann-windowed, {2 * engine.SINC_HALF + 1} taps, 1/{engine.OVERSAMPLE}-sample grid",
+            "hpf": "none",
+        }
+
+    def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
+        src = torch.as_tensor(sources, device=self.device)
+        mic = torch.as_tensor(mics, device=self.device)
+        return engine.image_source_rirs(room, src, mic, fs, generator)
+
+
+_PRA_WALLS = ("west", "east", "south", "north", "floor", "ceiling")  # = x0, x1, y0, y1, z0, z1
+
+
+class PyroomacousticsSimulator(_TorchBackend):
+    """The same model through pyroomacoustics' ShoeBox image sources.
+
+    Pinned settings (restored afterwards): ``frac_delay_length = 33`` (the builtin's sinc length),
+    ``sinc_lut_granularity = 20``, ``rir_hpf_enable = False``, ``c = 343``; no air absorption, no
+    ray tracing, no randomised ISM; ``max_order`` = the highest reflection order among the images
+    that reach Tdiff. Its RIRs are shifted back by its ``frac_delay_length // 2`` global delay and
+    scaled by ``1 / (4 pi)`` (pyroomacoustics uses ``1 / r``), cut at Tdiff, and the builtin's
+    diffuse tail is added from there.
+    """
+
+    name = "pyroomacoustics"
+    SOURCES_PER_ROOM = 8  # bounds pyroomacoustics' image arrays
+
+    def __init__(self, device: str | torch.device | None = None) -> None:
+        try:
+            import pyroomacoustics  # noqa: F401
+        except ImportError:
+            raise DependencyError(
+                "pyroomacoustics is not installed: pip install pyroomacoustics==0.10.1"
+            ) from None
+        self.device = engine.resolve_device(device)
+
+    def settings(self) -> dict:
+        from doabench.geometry import SPEED_OF_SOUND
+
+        return {
+            "frac_delay_length": 2 * engine.SINC_HALF + 1,
+            "sinc_lut_granularity": 20,
+            "rir_hpf_enable": False,
+            "c": SPEED_OF_SOUND,
+        }
+
+    def versions(self) -> dict[str, str]:
+        import pyroomacoustics as pra
+
+        out = {"backend": self.name, "pyroomacoustics": pra.__version__, "torch": torch.__version__}
+        out.update({k: str(v) for k, v in self.settings().items()})
+        return out
+
+    @contextlib.contextmanager
+    def _constants(self):
+        import pyroomacoustics as pra
+
+        old = {k: pra.constants.get(k) for k in self.settings()}
+        try:
+            for k, v in self.settings().items():
+                pra.constants.set(k, v)
+            yield pra
+        finally:
+            for k, v in old.items():
+                pra.constants.set(k, v)
+
+    def max_order(self, room: Room, layout: engine.RirLayout, fs: int) -> int:
+        """Reflection order that includes every image arriving before the end of the ISM part."""
+        if room.t60 == 0:
+            return 0
+        from doabench.geometry import SPEED_OF_SOUND
+
+        horizon = (layout.n_early + engine.SINC_HALF) / fs * SPEED_OF_SOUND
+        return int(engine.enumerate_images(room, horizon).order.max())
+
+    def early_part(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, layout) -> np.ndarray:
+        """pyroomacoustics' image-source responses ``(S, M, n_early)`` float32 (our conventions)."""
+        S, M = len(sources), len(mics)
+        early = np.zeros((S, M, layout.n_early), dtype=np.float32)
+        beta = room.reflection_coefficients()
+        order = self.max_order(room, layout, fs)
+        with self._constants() as pra:
+            shift = pra.constants.get("frac_delay_length") // 2
+            materials = {w: pra.Material(energy_absorption=float(1 - b**2)) for w, b in zip(_PRA_WALLS, beta)}
+            for s0 in range(0, S, self.SOURCES_PER_ROOM):  # pyroomacoustics' API is per source
+                chunk = sources[s0 : s0 + self.SOURCES_PER_ROOM]
+                shoebox = pra.ShoeBox(
+                    list(room.dims), fs=fs, materials=materials, max_order=order,
+                    air_absorption=False, ray_tracing=False, use_rand_ism=False,
+                )
+                for p in chunk:
+                    shoebox.add_source(list(p))
+                shoebox.add_microphone_array(np.asarray(mics, dtype=np.float64).T)
+                shoebox.compute_rir()
+                for m in range(M):
+                    for k in range(len(chunk)):
+                        h = np.asarray(shoebox.rir[m][k][shift : shift + layout.n_early])
+                        early[s0 + k, m, : len(h)] = h / (4 * math.pi)
+        return early
+
+    def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
+        src = torch.as_tensor(sources, device=self.device)
+        mic = torch.as_tensor(mics, device=self.device)
+        delays = engine.direct_delays(src, mic, fs)
+        layout = engine.rir_layout(room, float(delays.max()), fs)
+        early = torch.as_tensor(self.early_part(room, sources, mics, fs, layout), device=self.device)
+        return engine.add_diffuse_tail(early, room, fs, layout, delays, generator)
+
+
+GPURIR_INSTALL = (
+    "gpuRIR is not installed: it is not on PyPI and needs an NVIDIA GPU with the CUDA toolkit; "
+    "install it from its GitHub repository with "
+    "`pip install https://github.com/DavidDiazGuerra/gpuRIR/zipball/master`"
+)
+
+
+class GpuRIRSimulator(_TorchBackend):
+    """Thin wrapper of gpuRIR's public API (``beta_SabineEstimation``, ``att2t_SabineEstimator``,
+    ``t2n``, ``simulateRIR`` with ``Tdiff``/``Tmax``). Amplitudes and tail are gpuRIR's own; its
+    tail noise is drawn on the GPU by gpuRIR and ``seed`` has no effect on it."""
+
+    name = "gpurir"
+
+    def __init__(self, device: str | torch.device | None = None) -> None:
+        try:
+            import gpuRIR
+        except ImportError:
+            raise DependencyError(GPURIR_INSTALL) from None
+        self._gpurir = gpuRIR
+        self.device = engine.resolve_device(device)
+
+    def versions(self) -> dict[str, str]:
+        return {
+            "backend": self.name,
+            "gpuRIR": str(getattr(self._gpurir, "__version__", "unknown")),
+            "torch": torch.__version__,
+        }
+
+    def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
+        g = self._gpurir
+        dims = np.asarray(room.dims)
+        if room.t60 == 0:
+            beta = np.zeros(6)
+            n_img = [1, 1, 1]
+            delays = engine.direct_delays(torch.as_tensor(sources), torch.as_tensor(mics), fs)
+            t_diff = None
+            t_max = engine.rir_layout(None, float(delays.max()), fs).n_taps / fs
+        else:
+            beta = g.beta_SabineEstimation(dims, room.t60, np.asarray(room.abs_weights))
+            t_diff = g.att2t_SabineEstimator(12, room.t60)
+            t_max = g.att2t_SabineEstimator(40, room.t60)
+            n_img = g.t2n(t_diff, dims)
+        kwargs = {} if t_diff is None else {"Tdiff": t_diff}
+        h = g.simulateRIR(dims, beta, np.asarray(sources), np.asarray(mics), n_img, t_max, fs, **kwargs)
+        return torch.as_tensor(np.asarray(h, dtype=np.float32), device=self.device)
+
+
+_BACKENDS = {
+    "builtin": BuiltinSimulator,
+    "pyroomacoustics": PyroomacousticsSimulator,
+    "gpurir": GpuRIRSimulator,
+}
+
+
+def simulator_names() -> list[str]:
+    return list(_BACKENDS)
+
+
+def get_simulator(name: str = "builtin", device: str | torch.device | None = None) -> Simulator:
+    """A backend by name: ``builtin`` (default; torch on ``device``, CPU when None),
+    ``pyroomacoustics`` or ``gpurir`` (DependencyError when gpuRIR is not importable)."""
+    key = str(name).lower()
+    if key not in _BACKENDS:
+        raise NotFoundError(f"unknown simulator {name!r}: use one of {', '.join(_BACKENDS)}")
+    try:
+        dev = engine.resolve_device(device)
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"unknown torch device {device!r}") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise DependencyError(f"device {device!r} requested but torch has no CUDA device here")
+    return _BACKENDS[key](dev)
