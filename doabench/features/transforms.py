@@ -1,0 +1,368 @@
+"""Stateful feature transforms: precompute the delay/steering tables once, then map audio to features.
+
+Thin wrappers over :mod:`doabench.features.functional` (the torchaudio functional/transforms
+split). Tables live on the CPU and are copied to an input's device on first use there.
+
+* :class:`SRPPHAT` -> ``(batch, frames, n_theta, n_phi)`` maps
+* :class:`GCCPHAT` -> ``(batch, frames, n_pairs, 2 * max_lag + 1)``
+* :class:`Spectrogram` -> ``(batch, frames, 2 * n_mics, window // 2)``
+* :class:`FeatureExtractor` -> a dict of several of them on one frame grid, silent frames zeroed.
+"""
+from __future__ import annotations
+
+from typing import Iterable, Mapping
+
+import numpy as np
+import torch
+
+from doabench.arrays import MicArray, get_array
+from doabench.errors import ConfigError, InputError
+from doabench.features import functional as F
+from doabench.framing import FrameSpec, frame_vad
+from doabench.geometry import SPEED_OF_SOUND, parse_resolution
+
+KINDS = ("srp", "srp_max", "gcc", "spectrogram")
+# Precompute the exact-mode steering table only below this size; above it the table is rebuilt
+# per grid block on every call (cheap next to the beamformer product for many frames).
+_STEER_CACHE_BYTES = 256 << 20
+
+
+def as_resolution(resolution) -> tuple[int, int]:
+    """``(n_theta, n_phi)`` from a pair or a ``"16x32"`` string."""
+    if isinstance(resolution, str):
+        return parse_resolution(resolution)
+    try:
+        n_theta, n_phi = (int(v) for v in resolution)
+    except (TypeError, ValueError):
+        raise ConfigError(f"resolution must be (n_theta, n_phi) or 'NxM', got {resolution!r}") from None
+    F._check_resolution(n_theta, n_phi)
+    return n_theta, n_phi
+
+
+def prepare_audio(audio, n_mics: int, min_samples: int = 0) -> tuple[torch.Tensor, bool]:
+    """Validate audio and return ``((batch, n_mics, samples) float32 tensor, was_batched)``.
+
+    Accepts ``(n_mics, samples)`` or ``(batch, n_mics, samples)``, numpy or torch (device kept).
+    """
+    if isinstance(audio, np.ndarray):
+        if not (np.issubdtype(audio.dtype, np.number) or audio.dtype == bool):
+            raise InputError(f"audio has non-numeric dtype {audio.dtype}")
+        x = torch.from_numpy(np.ascontiguousarray(audio))
+    elif isinstance(audio, torch.Tensor):
+        x = audio
+    else:
+        raise InputError(f"audio must be a numpy array or torch tensor, got {type(audio).__name__}")
+    if x.is_complex():
+        raise InputError("audio must be real-valued, got complex samples")
+    batched = x.ndim == 3
+    if x.ndim == 2:
+        x = x.unsqueeze(0)
+    elif x.ndim != 3:
+        raise InputError(f"audio must be (n_mics, samples) or (batch, n_mics, samples), got shape {tuple(x.shape)}")
+    if x.shape[1] != n_mics:
+        raise InputError(f"audio has {x.shape[1]} channels but the array has {n_mics} microphones")
+    x = x.to(torch.float32)
+    if not bool(torch.isfinite(x).all()):
+        raise InputError("audio contains NaN or infinite samples")
+    if x.shape[-1] < min_samples:
+        raise InputError(f"recording has {x.shape[-1]} samples, shorter than one {min_samples}-sample window")
+    return x, batched
+
+
+def prepare_vad(sample_vad, batch: int, samples: int, batched: bool, device) -> torch.Tensor | None:
+    """Validate a per-sample VAD; returns ``(batch, samples)`` bool on ``device`` or None."""
+    if sample_vad is None:
+        return None
+    v = torch.as_tensor(np.asarray(sample_vad) if not isinstance(sample_vad, torch.Tensor) else sample_vad)
+    if not batched and v.ndim == 1:
+        v = v.unsqueeze(0)
+    if tuple(v.shape) != (batch, samples):
+        want = (batch, samples) if batched else (samples,)
+        raise InputError(f"sample VAD has shape {tuple(v.shape)}, expected {want} to match the audio")
+    return (v != 0).to(device)
+
+
+class _DeviceCache:
+    """CPU tensors copied lazily to each device they are used on."""
+
+    def __init__(self, **tensors: torch.Tensor | None) -> None:
+        self._cpu = tensors
+        self._by_device: dict[torch.device, dict] = {}
+
+    def on(self, device: torch.device) -> dict:
+        if device not in self._by_device:
+            self._by_device[device] = {k: (None if v is None else v.to(device)) for k, v in self._cpu.items()}
+        return self._by_device[device]
+
+
+class Spectrogram:
+    """Magnitude/phase spectrogram features (:func:`functional.spectrogram_features`).
+
+    ``__call__(audio (batch, n_mics, samples), vad (batch, frames) | None)`` ->
+    ``(batch, frames, 2 * n_mics, window // 2)`` float32, silent frames zeroed.
+    """
+
+    def __init__(self, frame_spec: FrameSpec = FrameSpec()) -> None:
+        self.frame_spec = frame_spec
+
+    def from_spectra(self, X: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
+        return F.zero_silent(F.spectrogram_features(X), vad)
+
+    def __call__(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
+        X = F.stft_frames(audio, self.frame_spec.window, self.frame_spec.hop)
+        return self.from_spectra(X, vad)
+
+
+class GCCPHAT:
+    """GCC-PHAT of every unique mic pair, lags ``-max_lag..max_lag`` with ``max_lag = array.max_lag(fs)``.
+
+    ``__call__(audio (batch, n_mics, samples), vad (batch, frames) | None)`` ->
+    ``(batch, frames, n_pairs, 2 * max_lag + 1)`` float32, silent frames zeroed.
+    """
+
+    def __init__(self, array: MicArray | str, frame_spec: FrameSpec = FrameSpec(), c: float = SPEED_OF_SOUND) -> None:
+        self.array = get_array(array)
+        self.frame_spec = frame_spec
+        self.c = float(c)
+        self.max_lag = self.array.max_lag(frame_spec.fs, c)
+        if 2 * self.max_lag + 1 > frame_spec.window:
+            raise ConfigError(
+                f"array {self.array.name!r} needs lags up to {self.max_lag} samples, too many for a "
+                f"{frame_spec.window}-sample window"
+            )
+        self.pairs = torch.from_numpy(self.array.pairs)
+        lags = torch.arange(-self.max_lag, self.max_lag + 1)
+        table = F.lag_dft_table(frame_spec.window, lags) if len(lags) <= F._DFT_MAX_LAGS else None
+        self._tables = _DeviceCache(pairs=self.pairs, table=table)
+
+    @property
+    def n_lags(self) -> int:
+        return 2 * self.max_lag + 1
+
+    def from_phat(self, W: torch.Tensor) -> torch.Tensor:
+        """Unmasked GCC from whitened spectra ``(batch, frames, n_mics, n_bins)``."""
+        t = self._tables.on(W.device)
+        return F.gcc_from_phat(W, t["pairs"], self.max_lag, self.frame_spec.window, t["table"])
+
+    def __call__(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
+        X = F.stft_frames(audio, self.frame_spec.window, self.frame_spec.hop)
+        return F.zero_silent(self.from_phat(F.phat(X)), vad)
+
+
+class SRPPHAT:
+    """SRP-PHAT maps on the equiangular grid of ``resolution = (n_theta, n_phi)``.
+
+    ``mode="nearest"`` (the paper) rounds pair delays to whole samples and looks them up in the
+    GCC; ``mode="exact"`` evaluates fractional delays exactly (PHAT beamformer). With
+    ``normalize=True`` (default) maps have their mean removed and are divided by their maximum.
+
+    ``__call__(audio (batch, n_mics, samples), vad (batch, frames) | None)`` ->
+    ``(batch, frames, n_theta, n_phi)`` float32, silent frames zeroed.
+    """
+
+    def __init__(
+        self,
+        array: MicArray | str,
+        resolution=(16, 32),
+        frame_spec: FrameSpec = FrameSpec(),
+        mode: F.DelayMode = "nearest",
+        normalize: bool = True,
+        c: float = SPEED_OF_SOUND,
+    ) -> None:
+        if mode not in F.DELAY_MODES:
+            raise ConfigError(f"unknown delay mode {mode!r}: use one of {', '.join(F.DELAY_MODES)}")
+        self.array = get_array(array)
+        self.resolution = as_resolution(resolution)
+        self.frame_spec = frame_spec
+        self.mode = mode
+        self.normalize = normalize
+        self.planar = bool(self.array.planar)
+        self.gcc = GCCPHAT(self.array, frame_spec, c)
+        n_theta, n_phi = self.resolution
+        tau = F.grid_delays(self.array.positions, n_theta, n_phi, frame_spec.fs, self.planar, c)
+        self.tau = torch.from_numpy(tau)  # (n_mics, n_grid) samples, float64
+        index = steer = None
+        if mode == "nearest":
+            index = torch.from_numpy(F.nearest_lag_index(tau, self.array.pairs, self.gcc.max_lag))
+        else:
+            nbytes = F.n_bins(frame_spec.window) * tau.size * 8
+            if nbytes <= _STEER_CACHE_BYTES:
+                steer = F.steering(self.tau, frame_spec.window)
+        self._tables = _DeviceCache(index=index, steer=steer, tau=self.tau)
+
+    def raw_from_phat(self, W: torch.Tensor, gcc: torch.Tensor | None = None) -> torch.Tensor:
+        """Raw maps from whitened spectra; ``gcc`` (this array's full GCC) is reused if given."""
+        n_theta, n_phi = self.resolution
+        t = self._tables.on(W.device)
+        if self.mode == "exact":
+            return F.srp_exact_from_phat(W, t["tau"], self.frame_spec.window, n_theta, n_phi, t["steer"])
+        if gcc is None:
+            gcc = self.gcc.from_phat(W)
+        return F.srp_from_gcc(gcc, t["index"], n_theta, n_phi)
+
+    def __call__(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
+        X = F.stft_frames(audio, self.frame_spec.window, self.frame_spec.hop)
+        maps = self.raw_from_phat(F.phat(X))
+        if self.normalize:
+            maps = F.normalize_maps(maps)
+        return F.zero_silent(maps, vad)
+
+
+class FeatureExtractor:
+    """Every feature a tracker may read, on one frame grid.
+
+    ``__call__(audio, sample_vad=None)``: ``audio`` ``(batch, n_mics, samples)`` (or
+    ``(n_mics, samples)``, then outputs have no batch axis), tensor or ndarray; ``sample_vad``
+    ``(batch, samples)`` bool/0-1 or None (all active). Returns a dict with the requested
+    ``kinds`` among
+
+    * ``srp``: ``(B, T, n_theta, n_phi)`` normalised maps
+    * ``srp_max``: ``(B, T, 2)`` normalised elevation/azimuth of each map's maximum
+    * ``gcc``: ``(B, T, n_pairs, 2 * max_lag + 1)``
+    * ``spectrogram``: ``(B, T_s, 2 * n_mics, K_s // 2)`` on ``spectrogram_frame_spec``'s grid
+
+    plus ``vad`` ``(B, T)`` bool (frame active when > 2/3 of its samples are). Features of silent
+    frames are zero. When the spectrogram has its own frame spec, ``spectrogram_vad``
+    ``(B, T_s)`` is added for its grid. All features are float32.
+    """
+
+    def __init__(
+        self,
+        array: MicArray | str,
+        kinds: Iterable[str] = KINDS,
+        resolution=(16, 32),
+        mode: F.DelayMode = "nearest",
+        frame_spec: FrameSpec = FrameSpec(),
+        spectrogram_frame_spec: FrameSpec | None = None,
+        c: float = SPEED_OF_SOUND,
+    ) -> None:
+        kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
+        unknown = [k for k in kinds if k not in KINDS]
+        if unknown or not kinds:
+            raise ConfigError(f"unknown feature kind(s) {unknown or kinds!r}: use some of {', '.join(KINDS)}")
+        self.kinds = tuple(k for k in KINDS if k in kinds)
+        self.array = get_array(array)
+        self.frame_spec = frame_spec
+        spec_fs = spectrogram_frame_spec or frame_spec
+        if spec_fs.fs != frame_spec.fs:
+            raise ConfigError(f"spectrogram sample rate {spec_fs.fs} differs from the features' {frame_spec.fs}")
+        self.spectrogram_frame_spec = spec_fs
+        self.mode = mode
+        self.resolution = as_resolution(resolution)
+        self.c = float(c)
+        self.srp = SRPPHAT(self.array, self.resolution, frame_spec, mode, True, c) if self._wants_srp else None
+        self.gcc = self.srp.gcc if self.srp else GCCPHAT(self.array, frame_spec, c) if "gcc" in self.kinds else None
+        self.spectrogram = Spectrogram(spec_fs) if "spectrogram" in self.kinds else None
+
+    # -- description ---------------------------------------------------------------------------
+    @property
+    def _wants_srp(self) -> bool:
+        return "srp" in self.kinds or "srp_max" in self.kinds
+
+    @property
+    def _main_kinds(self) -> tuple[str, ...]:
+        return tuple(k for k in self.kinds if k != "spectrogram")
+
+    @property
+    def separate_spectrogram_grid(self) -> bool:
+        """True when the spectrogram is framed differently from the other features."""
+        return "spectrogram" in self.kinds and self.spectrogram_frame_spec != self.frame_spec
+
+    @property
+    def min_samples(self) -> int:
+        """Shortest recording that yields at least one frame of every requested kind."""
+        windows = [self.frame_spec.window]
+        if "spectrogram" in self.kinds:
+            windows.append(self.spectrogram_frame_spec.window)
+        return max(windows)
+
+    def feature_shapes(self) -> dict[str, tuple[int, ...]]:
+        """Per-frame shape of each output key (without batch and frame axes)."""
+        shapes: dict[str, tuple[int, ...]] = {}
+        if "srp" in self.kinds:
+            shapes["srp"] = self.resolution
+        if "srp_max" in self.kinds:
+            shapes["srp_max"] = (2,)
+        if "gcc" in self.kinds:
+            shapes["gcc"] = (len(self.array.pairs), self.gcc.n_lags)
+        if "spectrogram" in self.kinds:
+            shapes["spectrogram"] = (2 * self.array.n_mics, self.spectrogram_frame_spec.window // 2)
+        shapes["vad"] = ()
+        if self.separate_spectrogram_grid:
+            shapes["spectrogram_vad"] = ()
+        return shapes
+
+    # -- computation ---------------------------------------------------------------------------
+    def _frame_vad(self, vad: torch.Tensor | None, spec: FrameSpec, batch: int, samples: int, device) -> torch.Tensor:
+        if vad is None:
+            return torch.ones((batch, spec.n_frames(samples)), dtype=torch.bool, device=device)
+        return frame_vad(vad, spec.window, spec.hop)
+
+    def compute(
+        self, x: torch.Tensor, sample_vad: torch.Tensor | None, main: bool = True, separate: bool = True
+    ) -> dict[str, torch.Tensor]:
+        """Features of validated audio ``(batch, n_mics, samples)`` float32 and VAD
+        ``(batch, samples)`` bool or None (no checks; see :meth:`__call__`).
+
+        ``main=False`` skips everything on ``frame_spec``'s grid (``vad`` included) and
+        ``separate=False`` skips a spectrogram on its own grid (used by the streaming extractor).
+        """
+        B, _, S = x.shape
+        out: dict[str, torch.Tensor] = {}
+        fs_main = self.frame_spec
+        vad = self._frame_vad(sample_vad, fs_main, B, S, x.device) if main else None
+        X = None
+        if main and self._main_kinds:
+            X = F.stft_frames(x, fs_main.window, fs_main.hop)
+            W = F.phat(X)
+            gcc = self.gcc.from_phat(W) if ("gcc" in self.kinds or (self.srp and self.srp.mode == "nearest")) else None
+            if self.srp is not None:
+                maps = F.normalize_maps(self.srp.raw_from_phat(W, gcc))
+                if "srp" in self.kinds:
+                    out["srp"] = F.zero_silent(maps, vad)
+                if "srp_max" in self.kinds:
+                    out["srp_max"] = F.zero_silent(F.map_maxima(maps, self.srp.planar), vad)
+            if "gcc" in self.kinds:
+                out["gcc"] = F.zero_silent(gcc, vad)
+        if "spectrogram" in self.kinds:
+            spec = self.spectrogram_frame_spec
+            if self.separate_spectrogram_grid and separate:
+                vad_s = self._frame_vad(sample_vad, spec, B, S, x.device)
+                out["spectrogram"] = self.spectrogram(x, vad_s)
+                out["spectrogram_vad"] = vad_s
+            elif main and not self.separate_spectrogram_grid:
+                if X is None:
+                    X = F.stft_frames(x, spec.window, spec.hop)
+                out["spectrogram"] = self.spectrogram.from_spectra(X, vad)
+        if main:
+            out["vad"] = vad
+        return {k: out[k] for k in self.feature_shapes() if k in out}
+
+    def __call__(self, audio, sample_vad=None) -> dict[str, torch.Tensor]:
+        x, batched = prepare_audio(audio, self.array.n_mics, self.min_samples)
+        vad = prepare_vad(sample_vad, x.shape[0], x.shape[-1], batched, x.device)
+        out = self.compute(x, vad)
+        return out if batched else {k: v[0] for k, v in out.items()}
+
+    def empty(self, batch: int, device=None) -> dict[str, torch.Tensor]:
+        """Zero-frame outputs ``(batch, 0, ...)`` with the right trailing shapes and dtypes."""
+        return {
+            k: torch.zeros((batch, 0) + s, dtype=torch.bool if k.endswith("vad") else torch.float32, device=device)
+            for k, s in self.feature_shapes().items()
+        }
+
+    def describe(self) -> Mapping[str, object]:
+        """Settings as JSON-serialisable data."""
+        d: dict[str, object] = {
+            "kinds": list(self.kinds),
+            "frame": self.frame_spec.to_dict(),
+            "array": self.array.to_dict(),
+            "c": self.c,
+        }
+        if self.srp is not None:
+            d.update(resolution="%dx%d" % self.resolution, delays=self.mode)
+        if self.gcc is not None:
+            d["max_lag"] = self.gcc.max_lag
+        if "spectrogram" in self.kinds:
+            d["spectrogram_frame"] = self.spectrogram_frame_spec.to_dict()
+        return d
