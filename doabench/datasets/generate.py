@@ -1,0 +1,410 @@
+"""``doabench make-dataset``: generate a dataset file, resumable and safe against SIGKILL.
+
+Crash safety (an HDF5 file killed mid-write can be unreadable, so nothing is ever appended to
+the final file in place):
+
+1. Every episode is computed (in worker processes with ``workers > 1``) and written to its own
+   small HDF5 file in the journal folder ``<out>.parts/``: first as ``.NNNNNN.<pid>.tmp``, then
+   closed, fsynced and renamed to ``NNNNNN.h5``. A rename is atomic, so a part either exists
+   whole, with its ``complete`` attribute, or not at all.
+2. When every episode of the run has its part, the parts are copied (raw compressed chunks, no
+   recompression) into ``<out>.partial`` in index order, which is fsynced and renamed to
+   ``<out>``; then the journal folder is removed.
+
+A run killed at any moment leaves the journal (and maybe a stale ``.partial``, or stray ``.tmp``
+files, which are deleted). Running the same command again keeps the finished parts, redoes the
+rest and assembles: the result equals an uninterrupted run, because episode ``i`` is a pure
+function of the task and ``i``. ``<out>.parts/config.json`` holds the generation config; a resume
+with another task, features or options is refused. ``<out>.parts/lock`` (an ``flock``, released
+by the kernel even on SIGKILL) stops two runs from writing the same output.
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import json
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+from doabench.datasets.layout import EpisodeRecord, is_complete, write_episode
+from doabench.datasets.schema import (
+    COMPRESSIONS, EPISODES, SCHEMA, FeatureRequest, dumps, episode_name, feature_names, open_h5,
+    parse_features, shard_indices,
+)
+from doabench.envs.registry import get_task_spec
+from doabench.envs.spec import TaskSpec
+from doabench.errors import ConfigError, InputError
+
+# Config keys that may differ between shards of one dataset (see merge).
+SHARD_KEYS = ("episodes", "shard")
+# Source options that only say where a corpus lives; they do not change the episodes.
+PATH_OPTIONS = ("librispeech", "locata_root")
+
+
+def parts_dir(out: str | Path) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".parts")
+
+
+def partial_path(out: str | Path) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".partial")
+
+
+def generation_config(spec: TaskSpec, requests: Sequence[FeatureRequest], episodes: int,
+                      shard: tuple[int, int] | None, float16: bool, delays: str, sample_vad: bool,
+                      compression: str, backend: str, device: str | None,
+                      source_options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The identity of a dataset: everything that changes its content (not workers or corpus paths)."""
+    return json.loads(dumps({
+        "task": spec.to_dict(),
+        "features": [r.name for r in requests],
+        "episodes": int(episodes),
+        "shard": list(shard) if shard else None,
+        "float16": bool(float16),
+        "delays": delays,
+        "sample_vad": bool(sample_vad or any(r.kind == "audio" for r in requests)),
+        "compression": compression,
+        "backend": backend,
+        "device": device or "cpu",
+        "source_options": {k: v for k, v in (source_options or {}).items() if k not in PATH_OPTIONS},
+    }))
+
+
+def config_difference(a: dict[str, Any], b: dict[str, Any], ignore: Sequence[str] = ()) -> list[str]:
+    """Top-level keys whose values differ (``task`` is reported as ``task`` or ``task.<key>``)."""
+    diff = []
+    for key in sorted(set(a) | set(b)):
+        if key in ignore or a.get(key) == b.get(key):
+            continue
+        if key == "task" and isinstance(a.get(key), dict) and isinstance(b.get(key), dict):
+            ta, tb = a[key], b[key]
+            diff += [f"task.{k}" for k in sorted(set(ta) | set(tb)) if ta.get(k) != tb.get(k)]
+        else:
+            diff.append(key)
+    return diff
+
+
+def describe_difference(a: dict[str, Any], b: dict[str, Any], keys: list[str]) -> str:
+    def get(cfg, key):
+        if key.startswith("task."):
+            return cfg.get("task", {}).get(key[5:])
+        return cfg.get(key)
+
+    parts = [f"{k}: {get(a, k)!r} vs {get(b, k)!r}" for k in keys[:3]]
+    return "; ".join(parts) + (" ..." if len(keys) > 3 else "")
+
+
+@contextlib.contextmanager
+def journal_lock(folder: Path) -> Iterator[None]:
+    """Exclusive ``flock`` on ``folder/lock`` (released by the kernel if the process dies)."""
+    import fcntl
+
+    fd = os.open(folder / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(f"another make-dataset is writing {folder} (its lock is held); wait for it "
+                             "or stop it") from None
+        yield
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def write_part(folder: Path, record: EpisodeRecord, compression: str) -> Path:
+    """Write one episode into ``folder/NNNNNN.h5`` atomically (tmp file, fsync, rename)."""
+    import h5py
+
+    name = episode_name(record.index)
+    tmp = folder / f".{name}.{os.getpid()}.tmp"
+    final = folder / f"{name}.h5"
+    try:
+        with h5py.File(tmp, "w") as f:
+            write_episode(f.create_group(EPISODES), record, compression)
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, final)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return final
+
+
+def scan_parts(folder: Path) -> set[int]:
+    """Indices of the finished parts; stray tmp files and unreadable parts are deleted."""
+    import h5py
+
+    done: set[int] = set()
+    for p in folder.iterdir():
+        if p.name.endswith(".tmp"):
+            p.unlink(missing_ok=True)
+            continue
+        if not (p.suffix == ".h5" and p.stem.isdigit()):
+            continue
+        try:
+            with h5py.File(p, "r") as f:
+                ok = is_complete(f[EPISODES][p.stem])
+        except (OSError, KeyError):
+            ok = False
+        if ok:
+            done.add(int(p.stem))
+        else:
+            p.unlink(missing_ok=True)
+    return done
+
+
+# -- worker processes ------------------------------------------------------------------------------
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], folder: str,
+                 compression: str) -> None:
+    import torch
+
+    from doabench.datasets.compute import EpisodeComputer
+
+    # One thread per process: the processes are the parallelism, and threads would fight over cores.
+    torch.set_num_threads(1)
+    _WORKER.update(computer=EpisodeComputer(spec, requests, **computer_kwargs), folder=Path(folder),
+                   compression=compression)
+
+
+def _work(index: int) -> int:
+    record = _WORKER["computer"].compute(index)
+    write_part(_WORKER["folder"], record, _WORKER["compression"])
+    return index
+
+
+# -- the command -----------------------------------------------------------------------------------
+@dataclass
+class GenerationResult:
+    path: Path
+    n_episodes: int
+    computed: int
+    resumed: int
+    seconds: float
+    already_complete: bool = False
+
+    @property
+    def episodes_per_minute(self) -> float:
+        return 60.0 * self.computed / self.seconds if self.seconds > 0 else float("nan")
+
+
+def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = None,
+                 features: str | Sequence[str] = "srp:16x32", shard: tuple[int, int] | None = None,
+                 workers: int = 1, float16: bool = False, sample_vad: bool = False, compression: str = "gzip",
+                 delays: str = "nearest", device: str | None = None, backend: str = "builtin",
+                 progress: bool | Callable[[int], None] = True, **source_options: Any) -> GenerationResult:
+    """Generate (or resume) dataset ``out`` with the first ``episodes`` episodes of ``task``.
+
+    ``shard=(k, n)`` keeps the episodes ``i % n == k - 1``; ``workers`` processes simulate in
+    parallel; ``source_options`` (``librispeech``, ...) go to the task's episode source.
+    ``progress``: a tqdm bar (True), none (False) or a callback called with each finished index.
+    """
+    start = time.perf_counter()
+    spec = get_task_spec(task)
+    requests = parse_features(features)
+    if compression not in COMPRESSIONS:
+        raise ConfigError(f"unknown compression {compression!r}; choose from {', '.join(COMPRESSIONS)}")
+    if int(workers) < 1:
+        raise ConfigError(f"--workers must be at least 1, got {workers}")
+    out = Path(out)
+    from doabench.envs.sources import make_episode_source
+
+    source = make_episode_source(spec, backend=backend, device=device, **source_options)
+    total = len(source)
+    episodes = total if episodes is None else int(episodes)
+    if not 1 <= episodes <= total:
+        raise ConfigError(f"task {spec.id!r} has {total} episodes; --episodes {episodes} is out of range 1..{total}")
+    config = generation_config(spec, requests, episodes, shard, float16, delays, sample_vad, compression, backend,
+                               device, source_options)
+    indices = shard_indices(episodes, shard)
+    if not indices:
+        raise ConfigError(f"shard {shard[0]}/{shard[1]} of {episodes} episodes is empty")
+    folder = parts_dir(out)
+
+    if out.exists():
+        existing = _existing_config(out)
+        diff = config_difference(existing, config)
+        if diff:
+            raise InputError(f"{out} exists and was made with another config ({describe_difference(existing, config, diff)}); "
+                             "remove it or choose another --out")
+        if folder.exists():  # killed after the final rename, before the journal was removed
+            shutil.rmtree(folder, ignore_errors=True)
+        return GenerationResult(out, len(indices), 0, len(indices), time.perf_counter() - start, True)
+
+    folder.mkdir(parents=True, exist_ok=True)
+    with journal_lock(folder):
+        _check_journal_config(folder, out, config)
+        done = scan_parts(folder) & set(indices)
+        todo = [i for i in indices if i not in done]
+        computer_kwargs = {"float16": float16, "delays": delays, "sample_vad": sample_vad, "device": device,
+                           "backend": backend, **source_options}
+        _run(spec, requests, computer_kwargs, todo, folder, compression, workers, progress, source,
+             total=len(indices), initial=len(done), desc=f"{spec.id} -> {out.name}")
+        info = {"generated_by": {"workers": int(workers), "source_options": {k: str(v) for k, v in source_options.items()},
+                                 "seconds": round(time.perf_counter() - start, 3)},
+                **_source_description(source)}
+        assemble(out, folder, indices, config, spec, requests, info)
+        shutil.rmtree(folder, ignore_errors=True)
+    return GenerationResult(out, len(indices), len(todo), len(done), time.perf_counter() - start)
+
+
+def _existing_config(out: Path) -> dict[str, Any]:
+    from doabench.datasets.schema import loads_attr
+
+    with open_h5(out) as f:
+        return loads_attr(f.attrs.get("config", "{}"), "config", out)
+
+
+def _check_journal_config(folder: Path, out: Path, config: dict[str, Any]) -> None:
+    from doabench.results.files import write_json
+
+    path = folder / "config.json"
+    if path.exists():
+        try:
+            old = json.loads(path.read_text())
+        except ValueError:
+            old = None
+        if old is not None:
+            diff = config_difference(old, config)
+            if diff:
+                raise ConfigError(f"{out}: an unfinished run with another config is in {folder} "
+                                  f"({describe_difference(old, config, diff)}); rerun it with the same options "
+                                  f"or delete {folder}")
+            return
+    write_json(path, config)
+
+
+def _source_description(source) -> dict[str, Any]:
+    try:
+        d = dict(source.describe())
+    except Exception:  # describe() is informative only
+        d = {}
+    return {"backend": d.get("simulator", ""), "simulator_versions": d.get("simulator_versions", {}), "source": d}
+
+
+def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[int], folder: Path,
+         compression: str, workers: int, progress, source, total: int, initial: int, desc: str) -> None:
+    bar = None
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=total, initial=initial, desc=desc, unit="episode", smoothing=0.1)
+
+    def done(index: int) -> None:
+        if bar is not None:
+            bar.update(1)
+        elif callable(progress):
+            progress(index)
+
+    try:
+        if not todo:
+            return
+        if workers == 1:
+            from doabench.datasets.compute import EpisodeComputer
+
+            computer = EpisodeComputer(spec, requests, source=source, **computer_kwargs)
+            for index in todo:
+                write_part(folder, computer.compute(index), compression)
+                done(index)
+            return
+        import multiprocessing
+        from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+
+        # 'spawn': a clean interpreter per worker (fork would copy torch's thread pools and locks).
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx, initializer=_init_worker,
+                                 initargs=(spec, requests, computer_kwargs, str(folder), compression)) as ex:
+            pending = {ex.submit(_work, i) for i in todo}
+            try:
+                while pending:
+                    finished, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                    for fut in finished:
+                        done(fut.result())  # re-raises a worker's error here
+            except BaseException:
+                for fut in pending:
+                    fut.cancel()
+                raise
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def file_attributes(config: dict[str, Any], spec_dict: dict[str, Any], item_names: list[str], n_requested: int,
+                    info: dict[str, Any]) -> dict[str, Any]:
+    """Root attributes of a dataset file (see docs/hdf5-schema.md)."""
+    import h5py
+    import numpy
+    import torch
+
+    from doabench import __version__
+    from doabench.results.provenance import git_commit
+
+    versions = {"doabench": __version__, "torch": torch.__version__, "numpy": numpy.__version__,
+                "h5py": h5py.__version__, "hdf5": h5py.version.hdf5_version}
+    sim_versions = info.get("simulator_versions") or {}
+    versions.update({f"simulator:{k}": str(v) for k, v in sim_versions.items()})
+    return {
+        "doabench_schema": SCHEMA,
+        "task_id": spec_dict["id"],
+        "task_version": int(spec_dict["version"]),
+        "task_spec": dumps(spec_dict),
+        "config": dumps(config),
+        "features": dumps(item_names),
+        "frames": dumps(spec_dict.get("frames", {})),
+        "array": dumps(_array_dict(spec_dict)),
+        "backend": str(info.get("backend") or config.get("backend", "")),
+        "versions": dumps(versions),
+        "git": dumps(git_commit()),
+        "n_requested": int(n_requested),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "generation": dumps({k: v for k, v in info.items()}),
+    }
+
+
+def _array_dict(spec_dict: dict[str, Any]) -> dict[str, Any]:
+    from doabench.arrays import get_array
+
+    try:
+        return get_array(spec_dict.get("array", "nao")).to_dict()
+    except Exception:  # an array file that moved: the episodes still carry their positions
+        return {"name": str(spec_dict.get("array"))}
+
+
+def assemble(out: Path, folder: Path, indices: Sequence[int], config: dict[str, Any], spec: TaskSpec,
+             requests: Sequence[FeatureRequest], info: dict[str, Any]) -> None:
+    """Copy the parts of ``indices`` into ``<out>.partial`` and rename it to ``out`` (atomic)."""
+    import h5py
+
+    tmp = partial_path(out)
+    tmp.unlink(missing_ok=True)  # a stale one from a killed assembly
+    try:
+        with h5py.File(tmp, "w") as f:
+            for k, v in file_attributes(config, spec.to_dict(), feature_names(requests), len(indices), info).items():
+                f.attrs[k] = v
+            eps = f.create_group(EPISODES)
+            for i in indices:
+                name = episode_name(i)
+                with h5py.File(folder / f"{name}.h5", "r") as part:
+                    part.copy(part[EPISODES][name], eps, name=name)
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, out)
+        _fsync_dir(out.parent)
+    finally:
+        tmp.unlink(missing_ok=True)

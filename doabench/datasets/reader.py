@@ -1,0 +1,167 @@
+"""Read a dataset file: its attributes, its complete episodes, one episode's arrays.
+
+Only groups whose ``complete`` attribute is True count as episodes; anything else is ignored
+(a dataset made by ``make-dataset`` never holds one, but a hand-made or foreign file might).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from doabench.arrays import MicArray
+from doabench.datasets.layout import is_complete, read_metadata
+from doabench.datasets.schema import EPISODES, TRUTH_KEYS, episode_name, loads_attr, open_h5, parse_feature
+from doabench.errors import InputError, NotFoundError
+from doabench.framing import FrameSpec
+
+
+class DatasetFile:
+    """A read-only dataset file. ``DatasetFile(path)``; use as a context manager or call close().
+
+    Attributes: ``path``, ``task_id``, ``task_version``, ``config`` (generation config dict),
+    ``task_spec`` (the task's spec dict), ``items`` (stored feature names, e.g. ``srp:16x32``,
+    ``srp_max:16x32``, ``gcc``, ``audio``), ``frames`` (:class:`FrameSpec`), ``indices`` (sorted
+    task episode indices of the complete episodes).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.file = open_h5(self.path)
+        try:
+            a = self.file.attrs
+            self.task_id = str(a.get("task_id", ""))
+            self.task_version = int(a.get("task_version", 0))
+            self.config: dict[str, Any] = loads_attr(a.get("config", "{}"), "config", self.path)
+            self.task_spec: dict[str, Any] = loads_attr(a.get("task_spec", "{}"), "task_spec", self.path)
+            self.items: list[str] = list(loads_attr(a.get("features", "[]"), "features", self.path))
+            self.frames = FrameSpec(**loads_attr(a.get("frames", "{}"), "frames", self.path))
+            self.n_requested = int(a.get("n_requested", 0))
+            eps = self.file[EPISODES]
+            self.n_groups = len(eps)
+            self.indices = sorted(int(name) for name, g in eps.items() if name.isdigit() and is_complete(g))
+        except (OSError, KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, InputError):
+                self.file.close()
+                raise
+            self.file.close()
+            raise InputError(f"{self.path}: unreadable dataset ({type(exc).__name__}: {exc})") from None
+
+    # -- basics ------------------------------------------------------------------------------------
+    def __enter__(self) -> "DatasetFile":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.file.close()
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    @property
+    def array(self) -> MicArray:
+        d = loads_attr(self.file.attrs.get("array", "{}"), "array", self.path)
+        if "positions" not in d:
+            from doabench.arrays import get_array
+
+            return get_array(d.get("name", "nao"))
+        return MicArray(d.get("name", "array"), np.asarray(d["positions"]), bool(d.get("planar", False)),
+                        source=str(self.path))
+
+    def attr_json(self, name: str, default: Any = None) -> Any:
+        return loads_attr(self.file.attrs[name], name, self.path) if name in self.file.attrs else default
+
+    # -- names -------------------------------------------------------------------------------------
+    def resolve(self, name: str) -> str:
+        """A stored item name for ``name`` (``srp`` alone means the only stored srp resolution)."""
+        if name in self.items:
+            return name
+        kind, sep, res = str(name).partition(":")
+        if kind in ("srp", "srp_max"):
+            if not sep:
+                cands = [i for i in self.items if i.split(":")[0] == kind]
+                if len(cands) == 1:
+                    return cands[0]
+            else:
+                canonical = f"{kind}:{parse_feature('srp:' + res).name.split(':')[1]}"
+                if canonical in self.items:
+                    return canonical
+        raise NotFoundError(f"{self.path} does not store feature {name!r} (it has {', '.join(self.items) or 'none'})")
+
+    @staticmethod
+    def item_path(item: str) -> str:
+        """Path of a stored item inside an episode group."""
+        kind, _, res = item.partition(":")
+        if kind in ("srp", "srp_max"):
+            return f"features/{kind}_{res}"
+        return "audio" if kind == "audio" else f"features/{kind}"
+
+    # -- episodes ----------------------------------------------------------------------------------
+    def group(self, index: int):
+        name = episode_name(index)
+        eps = self.file[EPISODES]
+        if name not in eps or not is_complete(eps[name]):
+            raise NotFoundError(f"{self.path} has no complete episode {index}")
+        return eps[name]
+
+    def read(self, index: int, items: Iterable[str]) -> dict[str, np.ndarray]:
+        """Stored features of episode ``index``: ``{name: (T, ...)}`` (audio: ``(M, L)``)."""
+        g = self.group(index)
+        out = {}
+        for name in items:
+            path = self.item_path(self.resolve(name))
+            if path not in g:
+                raise InputError(f"{self.path}: episode {index} lacks {path} (corrupt file?)")
+            out[name] = g[path][()]
+        return out
+
+    def truth(self, index: int) -> dict[str, np.ndarray]:
+        """Per-frame truth: directions (T, 3), elevation, azimuth, times (T,), vad (T,) bool."""
+        g = self.group(index)
+        out = {k: g[f"truth/{k}"][()] for k in TRUTH_KEYS}
+        out["vad"] = np.asarray(g["vad"][()], bool)
+        return out
+
+    def metadata(self, index: int) -> dict[str, Any]:
+        return read_metadata(self.group(index))
+
+    def has(self, index: int, path: str) -> bool:
+        return path in self.group(index)
+
+    # -- summary -----------------------------------------------------------------------------------
+    def info(self) -> dict[str, Any]:
+        """What ``doabench dataset info`` prints: task, episodes, features and shapes, sizes, config."""
+        size = self.path.stat().st_size
+        shapes: dict[str, Any] = {}
+        if self.indices:
+            g = self.group(self.indices[0])
+
+            def visit(path, obj):
+                if hasattr(obj, "dtype") and path != "metadata":
+                    stored = obj.id.get_storage_size()
+                    shapes[path] = {"shape": list(obj.shape), "dtype": str(obj.dtype), "stored_bytes": int(stored),
+                                    "compression": obj.compression}
+
+            g.visititems(visit)
+        return {
+            "path": str(self.path),
+            "schema": self.file.attrs.get("doabench_schema"),
+            "task": self.task_id,
+            "task_version": self.task_version,
+            "episodes_complete": len(self.indices),
+            "episodes_requested": self.n_requested,
+            "incomplete_groups": self.n_groups - len(self.indices),
+            "index_range": [self.indices[0], self.indices[-1]] if self.indices else None,
+            "features": self.items,
+            "arrays": shapes,
+            "file_bytes": size,
+            "bytes_per_episode": size / len(self.indices) if self.indices else None,
+            "frames": self.frames.to_dict(),
+            "backend": self.file.attrs.get("backend"),
+            "versions": self.attr_json("versions", {}),
+            "created": self.file.attrs.get("created"),
+            "config": self.config,
+        }

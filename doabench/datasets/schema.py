@@ -1,0 +1,192 @@
+"""The dataset file format ``doabench.dataset/1``: names, feature requests and safe opening.
+
+Layout (full description with shapes and dtypes in docs/hdf5-schema.md)::
+
+    /                               attrs: doabench_schema, task_id, task_version, config (JSON), ...
+    /episodes/000123/               attrs: complete, index, seed, n_frames, n_samples
+        features/srp_16x32          (T, 16, 32)  float32 or float16
+        features/srp_max_16x32      (T, 2)       float32
+        features/gcc                (T, P, lags) float32 or float16
+        features/spectrogram        (T, 2M, K/2) float32 or float16
+        audio                       (M, L)       float32          (feature "audio")
+        sample_vad                  (L,)         bool             (with audio or --sample-vad)
+        sample_directions           (L, 3)       float32          (with audio)
+        truth/directions            (T, 3)       float64 unit vectors
+        truth/elevation, azimuth    (T,)         float64 radians
+        truth/times                 (T,)         float64 seconds (window centres)
+        vad                         (T,)         bool
+        scene/...                   room_dims, array_position, trajectory, ... (simulated tasks)
+        metadata                    JSON string: the episode's full metadata
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from doabench.errors import ConfigError, InputError, NotFoundError
+
+SCHEMA = "doabench.dataset/1"
+SCHEMA_PREFIX = "doabench.dataset/"
+EPISODES = "episodes"
+FEATURES = "features"
+TRUTH_KEYS = ("directions", "elevation", "azimuth", "times")
+KINDS = ("srp", "gcc", "spectrogram", "audio")
+DEFAULT_FEATURES = "srp:16x32"
+# Maps that the --float16 option stores as half precision (srp_max and audio stay float32).
+HALF_KINDS = ("srp", "gcc", "spectrogram")
+COMPRESSIONS = ("gzip", "lzf", "none")
+
+
+def episode_name(index: int) -> str:
+    """Group name of episode ``index`` (zero-padded so that names sort like indices)."""
+    return f"{int(index):06d}"
+
+
+@dataclass(frozen=True)
+class FeatureRequest:
+    """One requested feature: ``kind`` (srp, gcc, spectrogram, audio) and, for srp, ``resolution``."""
+
+    kind: str
+    resolution: tuple[int, int] | None = None
+
+    @property
+    def name(self) -> str:
+        """Canonical text form: ``srp:16x32``, ``gcc``, ``spectrogram``, ``audio``."""
+        return f"{self.kind}:{self.resolution[0]}x{self.resolution[1]}" if self.resolution else self.kind
+
+    def stored(self) -> dict[str, str]:
+        """Item name -> path inside an episode group of everything this request stores."""
+        if self.kind == "srp":
+            r = f"{self.resolution[0]}x{self.resolution[1]}"
+            return {f"srp:{r}": f"{FEATURES}/srp_{r}", f"srp_max:{r}": f"{FEATURES}/srp_max_{r}"}
+        if self.kind == "audio":
+            return {"audio": "audio"}
+        return {self.kind: f"{FEATURES}/{self.kind}"}
+
+
+_RES = re.compile(r"^(\d+)x(\d+)$")
+
+
+def parse_feature(text: str) -> FeatureRequest:
+    """``"srp:16x32"`` / ``"srp"`` (16x32) / ``"gcc"`` / ``"spectrogram"`` / ``"audio"``."""
+    kind, _, res = text.strip().partition(":")
+    kind = kind.strip().lower()
+    if kind not in KINDS:
+        raise ConfigError(f"unknown dataset feature {text!r}; choose from srp:NxM, gcc, spectrogram, audio")
+    if kind != "srp":
+        if res:
+            raise ConfigError(f"feature {kind!r} takes no resolution, got {text!r}")
+        return FeatureRequest(kind)
+    m = _RES.match(res.strip() or "16x32")
+    if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
+        raise ConfigError(f"bad srp resolution in {text!r}; write it as srp:16x32 (elevations x azimuths)")
+    return FeatureRequest("srp", (int(m.group(1)), int(m.group(2))))
+
+
+def parse_features(spec: str | Iterable[str]) -> tuple[FeatureRequest, ...]:
+    """A comma-separated list (or a sequence) of features, de-duplicated, in a canonical order.
+
+    The order (srp by resolution, then gcc, spectrogram, audio) makes ``srp:16x32,gcc`` and
+    ``gcc,srp:16x32`` the same generation config.
+    """
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    requests = {parse_feature(t) for t in items if str(t).strip()}
+    if not requests:
+        raise ConfigError("no dataset feature requested; e.g. --features srp:16x32,gcc")
+    return tuple(sorted(requests, key=lambda r: (KINDS.index(r.kind), r.resolution or (0, 0))))
+
+
+def shard_indices(n_episodes: int, shard: tuple[int, int] | None) -> list[int]:
+    """Episode indices of shard ``(k, n)`` (1-based k) of ``range(n_episodes)``: ``i % n == k - 1``.
+
+    Strided rather than contiguous so that every shard gets its share of each grid cell.
+    """
+    if shard is None:
+        return list(range(n_episodes))
+    k, n = shard
+    return list(range(k - 1, n_episodes, n))
+
+
+def parse_shard(text: str | None) -> tuple[int, int] | None:
+    """``"2/8"`` -> ``(2, 8)``; None stays None."""
+    if text is None:
+        return None
+    m = re.match(r"^\s*(\d+)\s*/\s*(\d+)\s*$", str(text))
+    if not m or not 1 <= int(m.group(1)) <= int(m.group(2)):
+        raise ConfigError(f"--shard must be K/N with 1 <= K <= N (e.g. 1/4), got {text!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+def dumps(obj: Any) -> str:
+    """Canonical JSON (sorted keys) for attributes; numpy values become plain numbers."""
+    from doabench.results.files import to_json
+
+    return json.dumps(json.loads(to_json(obj, indent=None)), sort_keys=True)
+
+
+def loads_attr(value: Any, what: str, path: str | Path) -> Any:
+    """Parse a JSON attribute, or an InputError naming the file."""
+    if isinstance(value, bytes):
+        value = value.decode()
+    try:
+        return json.loads(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: attribute {what} is not valid JSON (corrupt file?)") from None
+
+
+def open_h5(path: str | Path, mode: str = "r", check_schema: bool = True):
+    """Open a dataset file with h5py; a missing, foreign, truncated or newer file is a clear error.
+
+    Uses h5py's default file locking, so a file being written by ``make-dataset`` cannot be
+    opened for writing twice.
+    """
+    import h5py
+
+    path = Path(path)
+    if mode == "r" and not path.exists():
+        raise NotFoundError(f"dataset file {path} does not exist")
+    if mode == "r" and path.is_dir():
+        raise InputError(f"{path} is a folder, not a dataset file")
+    if mode == "r":
+        with open(path, "rb") as f:
+            head = f.read(8)
+        if head != b"\x89HDF\r\n\x1a\n":
+            # HDF5 may put the signature at 512, 1024, ... when a user block exists; h5py knows.
+            if not h5py.is_hdf5(str(path)):
+                raise InputError(f"{path} is not an HDF5 file (not a doabench dataset)")
+    try:
+        f = h5py.File(path, mode)
+    except OSError as exc:
+        reason = str(exc).split("(")[-1].rstrip(")") if "(" in str(exc) else str(exc)
+        if "lock" in str(exc).lower():
+            raise InputError(f"{path} is open for writing by another process ({reason})") from None
+        raise InputError(f"{path} cannot be read: truncated or corrupt HDF5 file ({reason})") from None
+    if check_schema:
+        try:
+            check_file_schema(f, path)
+        except Exception:
+            f.close()
+            raise
+    return f
+
+
+def check_file_schema(f, path: str | Path) -> None:
+    schema = f.attrs.get("doabench_schema")
+    if isinstance(schema, bytes):
+        schema = schema.decode()
+    if schema is None:
+        raise InputError(f"{path} is an HDF5 file but not a doabench dataset (no doabench_schema attribute)")
+    if schema != SCHEMA:
+        if str(schema).startswith(SCHEMA_PREFIX):
+            raise InputError(f"{path} has schema {schema}; this doabench reads {SCHEMA} (update doabench)")
+        raise InputError(f"{path} has schema {schema!r}, not a doabench dataset ({SCHEMA})")
+    if EPISODES not in f:
+        raise InputError(f"{path}: no {EPISODES} group (truncated or corrupt dataset)")
+
+
+def feature_names(requests: Sequence[FeatureRequest]) -> list[str]:
+    """Every item name the requests store (srp requests also store their srp_max)."""
+    return [name for r in requests for name in r.stored()]
