@@ -15,8 +15,10 @@ Steps (the paper's Fig. 3, plus an optional directional noise):
 4. spatially white Gaussian noise of power ``P / 10^(SNR/10)`` is added to every microphone
    (the "noise" stream of the scene seed);
 5. optionally (beyond the paper) a stationary directional noise (pink, brown or low-passed white
-   noise) is simulated from its static position and added, scaled so that its direct-path power
-   over all samples is ``P / 10^(snr/10)`` with the scene's directional-noise SNR.
+   noise) is simulated from its static position and added. Its SNR is measured **at the
+   microphones**: the reverberant speech power over the non-silent frames versus the reverberant
+   noise power over all samples. (A far noise source is dominated by reverberation, more so for
+   low-frequency noise, so its direct path says little about how loud it is in the recording.)
 
 Same scene, same backend and same device give bitwise identical audio: every random draw comes
 from a named stream of the scene seed (the builtin simulator's diffuse tail included).
@@ -136,11 +138,12 @@ def render_components(scene: Scene, speech_source, array: MicArray | str | None 
     if chunk.signal.shape != (n,):
         raise ConfigError(f"speech chunk has {chunk.signal.shape[0]} samples, the scene needs {n}")
     speech = chunk.signal.astype(np.float64)
-    mics = scene.mic_room_positions
-    sources = scene.source_positions
+    mics = np.array(scene.mic_room_positions)  # writable copies: torch refuses read-only arrays
+    sources = np.array(scene.source_positions)
 
     reverberant = _simulate(sim, scene.room, sources, mics, speech, fs, _seed_of(streams["simulator"]))
-    direct = np.asarray(direct_path(scene.room, sources, mics, speech, fs), dtype=np.float64)
+    dev = getattr(sim, "device", None)
+    direct = np.asarray(direct_path(scene.room, sources, mics, speech, fs, device=dev), dtype=np.float64)
     signal_power, active_frames = reference_power(direct, chunk.vad)
     if not signal_power > 0:
         raise ConfigError("the scene's speech chunk is silent: cannot set an SNR")
@@ -154,10 +157,10 @@ def render_components(scene: Scene, speech_source, array: MicArray | str | None 
     if scene.directional_noise is not None:
         dn = scene.directional_noise
         sig = noise_signal(dn.kind, n, fs, np.random.default_rng(streams["directional_signal"]))
-        pos = dn.position[None]
-        ref = np.asarray(direct_path(scene.room, pos, mics, sig, fs), dtype=np.float64)
-        gain = np.sqrt(signal_power / 10.0 ** (dn.snr_db / 10.0) / max(float(np.mean(ref**2)), 1e-300))
-        directional = gain * _simulate(sim, scene.room, pos, mics, sig, fs, _seed_of(streams["directional"]))
+        pos = np.array(dn.position[None])
+        directional = _simulate(sim, scene.room, pos, mics, sig, fs, _seed_of(streams["directional"]))
+        speech_at_mics, _ = reference_power(reverberant, chunk.vad)
+        directional *= np.sqrt(speech_at_mics / 10.0 ** (dn.snr_db / 10.0) / max(float(np.mean(directional**2)), 1e-300))
         audio = audio + directional
 
     metadata = {

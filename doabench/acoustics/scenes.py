@@ -58,7 +58,7 @@ class SceneDistribution:
     fractions of the room dimensions. ``directional_noise_p`` is the probability that a scene adds
     a stationary directional noise source (e.g. a fan; off by default) of kind
     ``directional_noise_kind`` at a random position, ``directional_noise_snr`` dB below the speech
-    (direct-path power over non-silent frames).
+    at the microphones (reverberant speech over non-silent frames vs. reverberant noise).
     """
 
     room_min: Vec3 = (3.0, 3.0, 2.5)

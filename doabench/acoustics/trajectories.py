@@ -38,7 +38,10 @@ def segment_bounds(n_samples: int, n_segments: int) -> np.ndarray:
     ``[b[i], b[i + 1])`` with ``b[i] = floor(i * L / S)``."""
     if n_segments < 1:
         raise ConfigError(f"a trajectory needs at least one point, got {n_segments}")
-    return (np.arange(n_segments + 1, dtype=np.int64) * int(n_samples)) // int(n_segments)
+    # The simulators' own rule, so truth and audio can never disagree about segments.
+    from doabench.acoustics.simulators import segment_bounds as simulator_segments
+
+    return simulator_segments(int(n_samples), int(n_segments))
 
 
 def segment_of_samples(n_samples: int, n_segments: int) -> np.ndarray:
