@@ -1,0 +1,172 @@
+"""``doabench features``: compute one feature kind of a recording and save it as ``.npy`` + JSON.
+
+    doabench features REC.wav --array nao --kind srp --resolution 16x32 --out maps.npy
+
+writes ``maps.npy`` (``(frames, ...)`` float32) and ``maps.json`` (settings, array, frame times,
+grid angles in degrees for maps, pairs and lags for GCC). Both are written atomically.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from doabench.errors import ConfigError, InputError, NotFoundError
+from doabench.framing import DEFAULT_FS, DEFAULT_WINDOW, FrameSpec
+
+HELP = "compute SRP-PHAT maps, GCC-PHAT or spectrograms of a WAV recording"
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("features", help=HELP, description=HELP + ".")
+    p.add_argument("recording", metavar="REC.wav", help="multichannel recording (one channel per microphone)")
+    p.add_argument("--array", default="nao", help="built-in array name or JSON/YAML array file (default: nao)")
+    p.add_argument("--kind", default="srp", choices=("srp", "srp_max", "gcc", "spectrogram"), help="feature to compute (default: srp)")
+    p.add_argument("--resolution", default="16x32", help="SRP grid N_THETAxN_PHI (default: 16x32)")
+    p.add_argument("--delays", default="nearest", choices=("nearest", "exact"), help="SRP delay evaluation (default: nearest, as the paper)")
+    p.add_argument("--window", type=int, default=DEFAULT_WINDOW, help=f"frame length K in samples (default: {DEFAULT_WINDOW})")
+    p.add_argument("--hop", type=int, default=None, help="hop in samples (default: 3K/4)")
+    p.add_argument("--fs", type=int, default=DEFAULT_FS, help=f"sample rate the features are computed at (default: {DEFAULT_FS})")
+    p.add_argument("--resample", action="store_true", help="resample a recording at another rate to --fs (polyphase, anti-aliased)")
+    p.add_argument("--out", required=True, help="output .npy path; a .json sidecar is written next to it")
+    p.set_defaults(func=run)
+
+
+def read_recording(path: Path) -> tuple[np.ndarray, int]:
+    """``(n_channels, samples)`` float32 and the sample rate; user errors as DoabenchError."""
+    import soundfile as sf
+
+    if not path.exists():
+        raise NotFoundError(f"recording {path} does not exist")
+    if not path.is_file():
+        raise InputError(f"recording {path} is not a file")
+    try:
+        data, sr = sf.read(str(path), dtype="float32", always_2d=True)
+    except Exception as exc:  # libsndfile reports every unreadable file its own way
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"cannot read {path} as audio ({msg})") from None
+    return np.ascontiguousarray(data.T), int(sr)
+
+
+def resample(x: np.ndarray, sr: int, fs: int) -> np.ndarray:
+    """Polyphase resampling (Kaiser-windowed anti-aliasing filter) of ``(channels, samples)``."""
+    from scipy.signal import resample_poly
+
+    g = math.gcd(sr, fs)
+    return resample_poly(x, fs // g, sr // g, axis=-1).astype(np.float32)
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Write through ``write(file)`` into a temp file in the same directory, then rename."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _sidecar(args, extractor, result: np.ndarray, sr: int, resampled: bool) -> dict:
+    from doabench import __version__
+    from doabench.geometry import grid_angles
+
+    spec: FrameSpec = extractor.spectrogram_frame_spec if args.kind == "spectrogram" else extractor.frame_spec
+    meta = {
+        "kind": args.kind,
+        "shape": list(result.shape),
+        "dtype": str(result.dtype),
+        "recording": str(args.recording),
+        "recording_fs": sr,
+        "resampled": resampled,
+        "frame": spec.to_dict(),
+        "window_function": "hann (periodic)",
+        "frame_times_s": spec.times(result.shape[0]).round(6).tolist(),
+        "array": extractor.array.to_dict(),
+        "speed_of_sound": extractor.c,
+        "silent_frames": "none zeroed (no VAD given)",
+        "doabench_version": __version__,
+    }
+    if args.kind in ("srp", "srp_max"):
+        el, az = grid_angles(*extractor.resolution, planar=extractor.array.planar)
+        meta.update(
+            resolution="%dx%d" % extractor.resolution,
+            delays=extractor.mode,
+            elevations_deg=np.degrees(el).round(6).tolist(),
+            azimuths_deg=np.degrees(az).round(6).tolist(),
+        )
+        if args.kind == "srp":
+            meta["axes"] = ["frame", "elevation", "azimuth"]
+            meta["normalization"] = "each map minus its mean, divided by its maximum"
+        else:
+            meta["axes"] = ["frame", "channel"]
+            meta["channels"] = ["elevation / elevation span", "(azimuth + 180) / 360"]
+    elif args.kind == "gcc":
+        L = extractor.gcc.max_lag
+        meta.update(axes=["frame", "pair", "lag"], pairs=extractor.array.pairs.tolist(), lags=list(range(-L, L + 1)))
+    else:
+        K = spec.window
+        meta.update(
+            axes=["frame", "channel", "frequency"],
+            channels="magnitude of mics 1..M (each divided by its maximum), then phase/pi of mics 1..M",
+            frequencies_hz=(np.arange(1, K // 2 + 1) * spec.fs / K).tolist(),
+        )
+    return meta
+
+
+def run(args) -> int:
+    import torch
+
+    from doabench.arrays import get_array
+    from doabench.features import FeatureExtractor
+    from doabench.geometry import parse_resolution
+
+    out = Path(args.out)
+    if out.suffix.lower() == ".json":
+        raise ConfigError(f"--out {out} must not end in .json: the sidecar gets that name")
+    if not out.parent.is_dir():
+        raise NotFoundError(f"output directory {out.parent} does not exist")
+    sidecar = out.with_suffix(".json")
+    array = get_array(args.array)
+    spec = FrameSpec(args.window, args.hop, args.fs)
+    resolution = parse_resolution(args.resolution)
+
+    path = Path(args.recording)
+    audio, sr = read_recording(path)
+    if audio.shape[0] != array.n_mics:
+        raise InputError(f"{path} has {audio.shape[0]} channels but array {array.name!r} has {array.n_mics} microphones")
+    if not np.all(np.isfinite(audio)):
+        raise InputError(f"{path} contains NaN or infinite samples")
+    resampled = False
+    if sr != args.fs:
+        if not args.resample:
+            raise InputError(f"{path} is sampled at {sr} Hz, not {args.fs} Hz: pass --resample to convert it")
+        audio, resampled = resample(audio, sr, args.fs), True
+    if audio.shape[-1] < spec.window:
+        raise InputError(
+            f"{path} has {audio.shape[-1]} samples at {args.fs} Hz, shorter than one {spec.window}-sample window"
+        )
+
+    extractor = FeatureExtractor(
+        array,
+        kinds=(args.kind,),
+        resolution=resolution,
+        mode=args.delays,
+        frame_spec=spec,
+        spectrogram_frame_spec=spec,
+    )
+    with torch.inference_mode():
+        result = extractor(audio)[args.kind].numpy().astype(np.float32, copy=False)
+    meta = _sidecar(args, extractor, result, sr, resampled)
+    _atomic_write(out, lambda f: np.save(f, result))
+    _atomic_write(sidecar, lambda f: f.write((json.dumps(meta) + "\n").encode()))
+    print(f"wrote {out} {tuple(result.shape)} and {sidecar}")
+    return 0
