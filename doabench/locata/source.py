@@ -1,0 +1,81 @@
+"""The ``locata`` task kind: an episode source over the recordings of one LOCATA task.
+
+Spec parameters (``[locata]`` section of the task's TOML): ``task`` (1..6), ``array``
+(``benchmark2``, ``dicit``, ``dummy``, ``eigenmike``), ``split`` (``dev`` default), ``vad``
+(``auto`` default: corpus VAD files when present, else WebRTC on the source signal; ``corpus``;
+``webrtc``). Run-time options: ``locata_root`` (else ``$DOABENCH_LOCATA``), ``split`` (overrides the
+spec's), ``vad``, ``source`` (a source name, for recordings with several).
+
+One episode per recording found, in recording order; the spec's ``episodes`` is only a
+placeholder (the corpus copy decides).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from doabench.envs.sources import register_task_kind
+from doabench.envs.spec import TaskSpec
+from doabench.episode import Episode
+from doabench.errors import ConfigError, NotFoundError
+from doabench.locata.layout import find_recordings
+from doabench.locata.reader import VAD_MODES, read_recording
+
+LICENSE = "LOCATA corpus, ODC-BY 1.0, DOI 10.5281/zenodo.3630471"
+
+
+class LocataEpisodes:
+    """Episodes of a ``locata`` task: ``len()`` = recordings found, ``episode(i)`` reads the i-th."""
+
+    def __init__(self, spec: TaskSpec, locata_root: str | None = None, split: str | None = None,
+                 vad: str | None = None, source: str | None = None, **_: Any) -> None:
+        params = dict(spec.params.get("locata", {}))
+        if "task" not in params:
+            raise ConfigError(f"task spec {spec.source_file or spec.id}: a locata task needs [locata] task = N")
+        self.spec = spec
+        self.task = int(params["task"])
+        self.array = str(params.get("array", "benchmark2"))
+        self.split = str(split or params.get("split", "dev"))
+        self.vad = str(vad or params.get("vad", "auto"))
+        if self.vad not in VAD_MODES:
+            raise ConfigError(f"LOCATA vad option {self.vad!r} is not one of {', '.join(VAD_MODES)}")
+        self.source = source
+        self.fs = spec.frames.fs
+        self.recordings = find_recordings(locata_root, self.split, self.task, self.array)
+        self.root = self.recordings[0].root
+
+    def __len__(self) -> int:
+        return len(self.recordings)
+
+    def episode(self, index: int) -> Episode:
+        if not 0 <= index < len(self):
+            raise NotFoundError(f"task {self.spec.id!r} has {len(self)} recordings in {self.root}/{self.split}; "
+                                f"episode {index} does not exist")
+        episode = read_recording(self.recordings[index], fs=self.fs, vad=self.vad, source=self.source)
+        episode.metadata.update({"task": self.spec.id, "episode_index": index})
+        return episode
+
+    def vad_sources(self) -> dict[int, str]:
+        """Per recording number, the VAD that is (or will be) used: ``corpus`` or ``webrtcvad``."""
+        out = {}
+        for rec in self.recordings:
+            names = rec.source_names()
+            has_file = bool(names) and all(rec.vad_file(n).is_file() for n in names)
+            out[rec.number] = "corpus" if has_file and self.vad != "webrtc" else "webrtcvad"
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "corpus": LICENSE,
+            "root": str(self.root),
+            "split": self.split,
+            "locata_task": self.task,
+            "array": self.array,
+            "recordings": [r.number for r in self.recordings],
+            "vad_rule": self.vad,
+            "vad_sources": {str(k): v for k, v in self.vad_sources().items()},
+            "fs": self.fs,
+            "truth": "v = R^T (s - p) per sample from interpolated poses; invalid required times are silent",
+        }
+
+
+register_task_kind("locata", LocataEpisodes)
