@@ -7,7 +7,8 @@ them (one extractor per srp resolution; gcc and spectrogram share the first one'
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+import contextlib
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -17,6 +18,21 @@ from doabench.datasets.schema import HALF_KINDS, TRUTH_KEYS, FeatureRequest
 from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
 from doabench.errors import InputError
+
+
+@contextlib.contextmanager
+def one_thread() -> Iterator[None]:
+    """Run torch on one thread: multi-threaded FFTs and reductions sum in another order, so the
+    same episode computed with 1 or 2 threads differs in the last bits. One thread everywhere makes
+    a dataset bitwise identical whatever ``--workers`` (parallelism comes from processes)."""
+    import torch
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 class EpisodeComputer:
@@ -85,7 +101,11 @@ class EpisodeComputer:
         return out
 
     def compute(self, index: int) -> EpisodeRecord:
-        """The record of episode ``index``."""
+        """The record of episode ``index``, computed with one torch thread (see :func:`one_thread`)."""
+        with one_thread():
+            return self._compute(index)
+
+    def _compute(self, index: int) -> EpisodeRecord:
         episode = self.source.episode(index)
         array = episode.array or self.array
         if episode.n_mics != array.n_mics:

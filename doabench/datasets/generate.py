@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
+import numpy as np
+
 from doabench.datasets.layout import EpisodeRecord, is_complete, write_episode
 from doabench.datasets.schema import (
     COMPRESSIONS, EPISODES, SCHEMA, FeatureRequest, dumps, episode_name, feature_names, open_h5,
@@ -241,8 +243,8 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
         existing = _existing_config(out)
         diff = config_difference(existing, config)
         if diff:
-            raise InputError(f"{out} exists and was made with another config ({describe_difference(existing, config, diff)}); "
-                             "remove it or choose another --out")
+            raise InputError(f"{out} exists and was made with another config "
+                             f"({describe_difference(existing, config, diff)}); remove it or choose another --out")
         if folder.exists():  # killed after the final rename, before the journal was removed
             shutil.rmtree(folder, ignore_errors=True)
         return GenerationResult(out, len(indices), 0, len(indices), time.perf_counter() - start, True)
@@ -256,7 +258,8 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
                            "backend": backend, **source_options}
         _run(spec, requests, computer_kwargs, todo, folder, compression, workers, progress, source,
              total=len(indices), initial=len(done), desc=f"{spec.id} -> {out.name}")
-        info = {"generated_by": {"workers": int(workers), "source_options": {k: str(v) for k, v in source_options.items()},
+        options = {k: str(v) for k, v in source_options.items()}
+        info = {"generated_by": {"workers": int(workers), "source_options": options,
                                  "seconds": round(time.perf_counter() - start, 3)},
                 **_source_description(source)}
         assemble(out, folder, indices, config, spec, requests, info)
@@ -397,6 +400,8 @@ def assemble(out: Path, folder: Path, indices: Sequence[int], config: dict[str, 
         with h5py.File(tmp, "w") as f:
             for k, v in file_attributes(config, spec.to_dict(), feature_names(requests), len(indices), info).items():
                 f.attrs[k] = v
+            # The episode indices this file is meant to hold (info reports complete / requested).
+            f.create_dataset("requested", data=np.asarray(indices, np.int64))
             eps = f.create_group(EPISODES)
             for i in indices:
                 name = episode_name(i)

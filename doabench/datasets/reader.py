@@ -37,10 +37,12 @@ class DatasetFile:
             self.task_spec: dict[str, Any] = loads_attr(a.get("task_spec", "{}"), "task_spec", self.path)
             self.items: list[str] = list(loads_attr(a.get("features", "[]"), "features", self.path))
             self.frames = FrameSpec(**loads_attr(a.get("frames", "{}"), "frames", self.path))
-            self.n_requested = int(a.get("n_requested", 0))
+            self.requested = ([int(i) for i in self.file["requested"][()]] if "requested" in self.file else None)
             eps = self.file[EPISODES]
             self.n_groups = len(eps)
             self.indices = sorted(int(name) for name, g in eps.items() if name.isdigit() and is_complete(g))
+            if self.requested is None:
+                self.requested = list(self.indices)
         except (OSError, KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, InputError):
                 self.file.close()
@@ -152,7 +154,8 @@ class DatasetFile:
             "task": self.task_id,
             "task_version": self.task_version,
             "episodes_complete": len(self.indices),
-            "episodes_requested": self.n_requested,
+            "episodes_requested": len(self.requested),
+            "episodes_missing": sorted(set(self.requested) - set(self.indices)),
             "incomplete_groups": self.n_groups - len(self.indices),
             "index_range": [self.indices[0], self.indices[-1]] if self.indices else None,
             "features": self.items,

@@ -105,18 +105,25 @@ class DoaEnv(gymnasium.Env):
         if index in self._cache:
             self._cache.move_to_end(index)
             return self._cache[index]
-        episode = self.source.episode(index)
-        array = episode.array or self.array
-        if episode.n_mics != array.n_mics:
-            raise InputError(f"episode {index} of {self.spec_task.id!r} has {episode.n_mics} channels but array "
-                             f"{array.name!r} has {array.n_mics} microphones")
-        import torch
+        # Sources of precomputed features (dataset replay, doabench.datasets.replay) may serve them
+        # directly: stored_features(...) -> (episode, features incl. vad, truth), or None to render.
+        provider = getattr(self.source, "stored_features", None)
+        stored = provider(index, self.features, self.resolution, self.frame_spec, self.delays) if provider else None
+        if stored is not None:
+            episode, feats, truth = stored
+        else:
+            episode = self.source.episode(index)
+            array = episode.array or self.array
+            if episode.n_mics != array.n_mics:
+                raise InputError(f"episode {index} of {self.spec_task.id!r} has {episode.n_mics} channels but "
+                                 f"array {array.name!r} has {array.n_mics} microphones")
+            import torch
 
-        audio = torch.as_tensor(np.ascontiguousarray(episode.audio), dtype=torch.float32, device=self.device)
-        vad = torch.as_tensor(np.asarray(episode.sample_vad, bool), device=self.device)
-        feats = self._extractor(array)(audio[None], vad[None])
-        feats = {k: v[0].detach().cpu().numpy() for k, v in feats.items()}
-        truth = episode.frame_truth(self.frame_spec)
+            audio = torch.as_tensor(np.ascontiguousarray(episode.audio), dtype=torch.float32, device=self.device)
+            vad = torch.as_tensor(np.asarray(episode.sample_vad, bool), device=self.device)
+            feats = self._extractor(array)(audio[None], vad[None])
+            feats = {k: v[0].detach().cpu().numpy() for k, v in feats.items()}
+            truth = episode.frame_truth(self.frame_spec)
         n = len(truth["directions"])
         feats["vad"] = feats["vad"].astype(np.int64) if "vad" in feats else truth["vad"].astype(np.int64)
         for k, v in feats.items():

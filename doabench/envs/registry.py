@@ -86,6 +86,8 @@ def get_task_spec(task_id: str | TaskSpec) -> TaskSpec:
     if isinstance(task_id, TaskSpec):
         return task_id
     _ensure_loaded()
+    if task_id.startswith("file:") and "file:" not in _PREFIX_RESOLVERS:
+        import doabench.datasets  # noqa: F401  (registers the "file:" resolver of dataset replay)
     for prefix, resolver in _PREFIX_RESOLVERS.items():
         if task_id.startswith(prefix):
             return resolver(task_id)
