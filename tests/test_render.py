@@ -144,3 +144,14 @@ def test_cli_simulate_end_to_end(tmp_path, capsys, monkeypatch):
     assert cli(["simulate", "--t60", "-1", "--duration", "1", "--out", str(tmp_path / "x")]) == 2
     assert "t60" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_cli_simulate_from_a_task(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert cli(["simulate", "--task", "sim-demo", "--seed", "1", "--duration", "1.5", "--out", str(out)]) == 0
+    info = json.loads((out / "scene.json").read_text())
+    assert info["task"] == "sim-demo" and 0.2 <= info["scene"]["room"]["t60"] <= 0.6
+    assert info["distribution"]["t60"] == [0.2, 0.6] and info["distribution"]["duration_s"] == 1.5
+    capsys.readouterr()
+    assert cli(["simulate", "--episode", "0", "--out", str(tmp_path / "x")]) == 2
+    assert "--episode needs --task" in capsys.readouterr().err

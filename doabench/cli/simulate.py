@@ -35,7 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--task", help="draw from this simulated task's scene distribution and speech corpus")
     p.add_argument("--t60", type=float, help="fixed reverberation time in seconds (0 = anechoic)")
     p.add_argument("--snr", type=float, help="fixed signal-to-noise ratio in dB")
-    p.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
+    p.add_argument("--seed", type=int, default=None, help="scene seed (default 0)")
+    p.add_argument("--episode", type=int, default=None,
+                   help="with --task: re-create that task's episode N exactly (its seed, speech and array)")
     p.add_argument("--duration", type=float, default=None,
                    help="seconds of audio (default 20, or the task's); the trajectory keeps its points per second")
     p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
@@ -61,6 +63,7 @@ def _task_setup(task_id: str, librispeech: str | None):
         raise ConfigError(f"task {spec.id!r} is a {spec.kind} task; simulate needs a simulated task")
     if "cells" in spec.params:
         raise ConfigError(f"task {spec.id!r} is a grid; simulate one of its cells (doabench list tasks)")
+    # A registry may expose the parsed distribution; else the [scene] table is the distribution.
     dist = getattr(spec, "scene_distribution", None) or SceneDistribution.from_dict(dict(spec.params.get("scene", {})))
     speech = dict(spec.params.get("speech", {}))
     if speech.get("corpus", "embedded") == "embedded":
@@ -97,6 +100,28 @@ def build_distribution(args: argparse.Namespace):
         changes["duration_s"] = args.duration
         changes["n_points"] = max(1, round(dist.n_points * args.duration / dist.duration_s))
     return dist.replace(**changes) if changes else dist, source, args.array or array
+
+
+def _task_episode(args: argparse.Namespace):
+    """(scene, speech source, distribution) of episode ``--episode`` of ``--task``, exactly as the
+    task's episode source draws it (``doabench run`` sees the same scene)."""
+    if not args.task:
+        raise ConfigError("--episode needs --task")
+    clashes = [f"--{n}" for n in ("seed", "t60", "snr", "duration", "array") if getattr(args, n) is not None]
+    if clashes:
+        raise ConfigError(f"--episode re-creates a task episode; drop {', '.join(clashes)}")
+    try:
+        from doabench.envs.registry import get_task_spec
+        from doabench.envs.sources import make_episode_source
+    except ImportError:
+        raise ConfigError("--task needs the task registry (doabench.envs), which is not installed") from None
+    spec = get_task_spec(args.task)
+    if spec.kind != "simulated":
+        raise ConfigError(f"task {spec.id!r} is a {spec.kind} task; simulate needs a simulated task")
+    source = make_episode_source(spec, librispeech=args.librispeech, backend=args.backend, device=args.device)
+    if not 0 <= args.episode < len(source):
+        raise ConfigError(f"task {spec.id!r} has {len(source)} episodes; --episode must be in 0..{len(source) - 1}")
+    return source.scene(args.episode), source.speech, None
 
 
 def write_outputs(folder: Path, episode, scene_info: dict) -> None:
@@ -142,19 +167,24 @@ def main(args: argparse.Namespace) -> int:
     from doabench.acoustics.simulators import get_simulator
     from doabench.arrays import get_array
 
-    if args.seed < 0:
-        raise ConfigError(f"--seed must be >= 0, got {args.seed}")
     out = Path(args.out)
     if out.exists() and not args.force and not (out.is_dir() and not any(out.iterdir())):
         raise ConfigError(f"output folder {out} already exists; use --force to replace it")
-    dist, source, array_name = build_distribution(args)
-    array = get_array(array_name)
     simulator = get_simulator(args.backend, device=args.device)
-    scene = sample_scene(dist, args.seed, source, array=array)
+    if args.episode is not None:
+        scene, source, dist = _task_episode(args)
+        array = scene.array
+    else:
+        seed = 0 if args.seed is None else args.seed
+        if seed < 0:
+            raise ConfigError(f"--seed must be >= 0, got {seed}")
+        dist, source, array_name = build_distribution(args)
+        array = get_array(array_name)
+        scene = sample_scene(dist, seed, source, array=array)
     episode = render_scene(scene, source, array, simulator=simulator, device=args.device)
     meta = episode.metadata
-    info = {"doabench_version": __version__, "task": args.task, "seed": args.seed, **meta,
-            "distribution": dist.to_dict(), "array": array.to_dict()}
+    info = {"doabench_version": __version__, "task": args.task, "episode": args.episode, "seed": scene.seed,
+            **meta, "distribution": None if dist is None else dist.to_dict(), "array": array.to_dict()}
 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
