@@ -1,0 +1,99 @@
+"""``doabench train --tracker cross3d:8x16 --out runs/NAME``: train a learned tracker.
+
+The paper's recipe by default (``--preset paper``: trajectories simulated on the fly); ``--preset
+cpu`` trains from a cache of simulated noise-free trajectories (build it with ``--build-cache``,
+possibly in a second process while training runs). See docs/training.md.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from doabench.cli.common import add_tracker_options
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("train", help="train a learned tracker (Cross3D, 1D/2D CNNs, SELDnet)",
+                       description="Train a learned tracker with the Cross3D paper's recipe (--preset paper) or the "
+                                   "CPU preset (--preset cpu, cached trajectories). Checkpoints every epoch; "
+                                   "--resume continues exactly. See docs/training.md.")
+    add_tracker_options(p)
+    p.add_argument("--task", default="sim-train", help="training distribution (default: sim-train)")
+    p.add_argument("--preset", choices=["paper", "cpu"], default="paper", help="training recipe (default: paper)")
+    p.add_argument("--epochs", type=int, help="number of epochs (default: the preset's)")
+    p.add_argument("--epoch-size", type=int, help="trajectories per epoch (default: the preset's)")
+    p.add_argument("--cache-size", type=int, help="cached training trajectories (cpu preset)")
+    p.add_argument("--val-trajectories", type=int, help="validation trajectories (default: the preset's)")
+    p.add_argument("--seed", type=int, default=0, help="run seed (network init and item seeds)")
+    p.add_argument("--workers", type=int, help="DataLoader worker processes (default: the preset's)")
+    p.add_argument("--out", required=True, help="run folder: checkpoints, log.csv, loss.png")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out")
+    p.add_argument("--librispeech", help="LibriSpeech root holding train-clean-100 (default: $DOABENCH_LIBRISPEECH)")
+    p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
+    p.add_argument("--cache-root", default="runs/cache", help="folder of trajectory caches (default: runs/cache)")
+    p.add_argument("--build-cache", action="store_true",
+                   help="only simulate the missing validation and training cache items, then exit")
+    p.add_argument("--min-cache", type=int, default=1,
+                   help="wait until this many training trajectories are cached before each epoch")
+    p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--max-epochs", type=int, help="stop after this many epochs in this invocation")
+    p.add_argument("--export", metavar="FILE", help="export the run's weights to FILE (.safetensors) and exit")
+    p.add_argument("--export-from", choices=["best", "latest"], default="best", help="checkpoint to export")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=main)
+
+
+def build_recipe(args: argparse.Namespace):
+    from doabench.training.recipes import get_recipe
+
+    recipe = get_recipe(args.preset)
+    changes = {"seed": args.seed}
+    for arg, key in (("epochs", "epochs"), ("epoch_size", "trajectories_per_epoch"), ("cache_size", "cache_size"),
+                     ("val_trajectories", "val_trajectories"), ("workers", "num_workers")):
+        if getattr(args, arg) is not None:
+            changes[key] = getattr(args, arg)
+    return recipe.replace(**changes)
+
+
+def main(args: argparse.Namespace) -> int:
+    import torch
+
+    from doabench.trackers.registry import make_tracker, parse_options
+    from doabench.training.protocol import check_trainable
+
+    options = parse_options(args.tracker_opt)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.export:
+        from doabench.training.export import export_weights
+
+        path = export_weights(args.out, args.export, args.export_from)
+        print(f"wrote {path}")
+        return 0
+    check_trainable(make_tracker(args.tracker, **options), args.tracker)  # fail fast, one line
+    from doabench.training.trainer import TrainOptions, Trainer
+
+    opts = TrainOptions(tracker=args.tracker, out=Path(args.out), recipe=build_recipe(args), task=args.task,
+                        librispeech=args.librispeech, cache_root=Path(args.cache_root), simulator=args.backend,
+                        resume=args.resume, threads=args.threads, progress=not args.quiet,
+                        max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options)
+    if args.build_cache:
+        from doabench.envs.registry import get_task_spec
+        from doabench.training.pipeline import ensure_cache
+        from doabench.training.protocol import training_defaults
+
+        recipe = opts.recipe
+        if recipe.t60 is None and "t60" in (d := training_defaults(make_tracker(args.tracker, **options))):
+            recipe = recipe.replace(t60=tuple(d["t60"]))
+        spec = get_task_spec(args.task)
+        log = lambda m: print(m, flush=True)  # noqa: E731
+        ensure_cache(opts.cache_root, spec, recipe, "val", recipe.val_trajectories, args.librispeech, args.backend, log)
+        if recipe.data == "cache":
+            ensure_cache(opts.cache_root, spec, recipe, "train", recipe.cache_size, args.librispeech, args.backend, log)
+        return 0
+    history = Trainer(opts, log=lambda m: print(m, flush=True)).run()
+    if history:
+        last = history[-1]
+        print(f"trained {last['epoch']} epochs ({last['trajectories_seen']} trajectories, {last['compute_s']:.0f} s); "
+              f"validation RMSAE {last['val_rmsae_all']:.2f} deg; run folder {args.out}")
+    return 0

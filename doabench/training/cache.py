@@ -1,0 +1,130 @@
+"""A cache of noise-free reverberant trajectories for CPU training (the ``cpu`` preset).
+
+Simulation dominates CPU training time, so each trajectory is simulated once and stored without
+noise; training items add fresh white noise at the curriculum's SNR (see :mod:`.data`).
+
+Layout of a cache folder (one per task/split/T60 range)::
+
+    manifest.json       # what the cache holds: task, split, array, scene distribution, seeds
+    00000.npz ...       # one file per trajectory, written atomically, so building is resumable
+
+Each ``.npz`` holds ``audio`` ``(M, L)`` float16 (the reverberant signal divided by ``scale``),
+``scale``, ``signal_power`` (the SNR reference power of ``audio``, i.e. already divided by
+``scale**2``), ``vad`` ``(L,)`` bool, ``trajectory`` ``(S, 3)``, ``array_position`` ``(3,)``,
+``snr_db`` (the scene's own SNR draw, used for validation), ``t60`` and ``seed``.
+Item ``i`` is the scene of seed ``episode_seed(base_seed, SPLIT_KEYS[split], i[, attempt])``;
+``attempt`` counts redraws of scenes the room model rejects (e.g. an unreachable T60).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from doabench.errors import ConfigError, NotFoundError
+from doabench.results.files import atomic_path, write_json
+
+SPLIT_KEYS = {"train": 1_000_001, "val": 1_000_002}
+CACHE_FORMAT = 1
+MAX_ATTEMPTS = 20
+
+
+def item_path(folder: Path, index: int) -> Path:
+    return Path(folder) / f"{index:05d}.npz"
+
+
+def cache_name(task_id: str, version: int, split: str, t60: tuple[float, float], base_seed: int) -> str:
+    """Folder name of a cache: everything that changes its contents."""
+    return f"{task_id}-v{version}-{split}-t60_{t60[0]:g}-{t60[1]:g}-seed{base_seed}"
+
+
+def write_item(path: Path, item: dict[str, Any]) -> None:
+    """Write one trajectory atomically (a crash never leaves a partial file)."""
+    with atomic_path(path, suffix=".npz") as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **item)
+
+
+def render_item(scene, speech, array, simulator) -> dict[str, Any]:
+    """Simulate ``scene`` without noise and pack it as a cache item."""
+    from doabench.acoustics.render import render_components
+
+    r = render_components(scene, speech, array, simulator)
+    scale = float(np.max(np.abs(r.reverberant))) or 1.0  # float16 keeps ~3 digits relative to the peak
+    return {
+        "audio": (r.reverberant / scale).astype(np.float16),
+        "scale": np.float64(scale),
+        "signal_power": np.float64(r.signal_power / scale**2),
+        "vad": np.asarray(r.episode.sample_vad, dtype=bool),
+        "trajectory": np.asarray(scene.source_positions, dtype=np.float64),
+        "array_position": np.asarray(scene.array_position, dtype=np.float64),
+        "snr_db": np.float64(scene.snr_db),
+        "t60": np.float64(scene.room.t60),
+        "seed": np.int64(scene.seed),
+    }
+
+
+def build_cache(folder: str | Path, n_items: int, draw_scene: Callable[[int], Any], speech, array, simulator,
+                base_seed: int, split: str, manifest: dict[str, Any], log: Callable[[str], None] = print) -> Path:
+    """Simulate items ``0 .. n_items - 1`` that are not in ``folder`` yet (resumable).
+
+    ``draw_scene(seed)`` returns the scene of a seed (it may raise ConfigError for a rejected
+    draw, which is retried with the next attempt's seed).
+    """
+    from doabench.envs.sources import episode_seed
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest_path = folder / "manifest.json"
+    full = {"format": CACHE_FORMAT, "split": split, "base_seed": base_seed, **manifest}
+    if manifest_path.exists():
+        old = json.loads(manifest_path.read_text())
+        old_cmp = {k: v for k, v in old.items() if k != "n_items"}
+        new_cmp = json.loads(json.dumps({k: v for k, v in full.items() if k != "n_items"}))
+        if old_cmp != new_cmp:
+            raise ConfigError(f"cache {folder} was built with other settings; use another --cache folder")
+    write_json(manifest_path, {**full, "n_items": max(n_items, _count(folder))})
+    start = time.perf_counter()
+    done = 0
+    for i in range(n_items):
+        path = item_path(folder, i)
+        if path.exists():
+            continue
+        for attempt in range(MAX_ATTEMPTS):
+            keys = (SPLIT_KEYS[split], i) if attempt == 0 else (SPLIT_KEYS[split], i, attempt)
+            try:
+                scene = draw_scene(episode_seed(base_seed, *keys))
+                break
+            except ConfigError:
+                continue
+        else:
+            raise ConfigError(f"cache item {i}: no valid scene in {MAX_ATTEMPTS} draws")
+        write_item(path, render_item(scene, speech, array, simulator))
+        done += 1
+        rate = (time.perf_counter() - start) / done
+        log(f"cache {folder.name}: item {i + 1}/{n_items} ({rate:.2f} s/trajectory)")
+    return folder
+
+
+def _count(folder: Path) -> int:
+    return len(list(Path(folder).glob("[0-9]*.npz")))
+
+
+class TrajectoryCache:
+    """Read access to a cache folder; ``available()`` lists the item indices present."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        if not (self.folder / "manifest.json").exists():
+            raise NotFoundError(f"no trajectory cache at {self.folder} (build it with `doabench train --build-cache`)")
+        self.manifest = json.loads((self.folder / "manifest.json").read_text())
+
+    def available(self) -> list[int]:
+        return sorted(int(p.stem) for p in self.folder.glob("[0-9]*.npz"))
+
+    def load(self, index: int) -> dict[str, np.ndarray]:
+        with np.load(item_path(self.folder, index)) as z:
+            return {k: z[k] for k in z.files}

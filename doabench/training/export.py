@@ -1,0 +1,60 @@
+"""Export a training run's checkpoint as a shippable weights file with full metadata."""
+from __future__ import annotations
+
+import platform
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from doabench.errors import ConfigError
+from doabench.training import checkpoint as ckpt
+from doabench.training.protocol import check_trainable
+
+
+def training_metadata(state: dict[str, Any], tracker: Any, which: str) -> dict[str, Any]:
+    """What a weights file records about how it was trained (JSON-serialisable)."""
+    import doabench
+    from doabench.envs.registry import get_task_spec
+
+    spec = get_task_spec(state["task"])
+    history = state["history"]
+    row = next((h for h in history if h["epoch"] == state["epoch"]), history[-1] if history else {})
+    return {
+        "tracker": state["tracker"],
+        "resolution": None if tracker.resolution is None else "%dx%d" % tuple(tracker.resolution),
+        "array": spec.array,
+        "features": list(tracker.features),
+        "frame": tracker.frame_spec.to_dict(),
+        "feature_settings": {"delays": getattr(tracker, "delays", "nearest"),
+                             "maps": "mean removed, divided by the maximum, zero in silent frames"},
+        "doabench_version": doabench.__version__,
+        "torch_version": torch.__version__,
+        "training": {
+            "task": spec.id, "task_version": spec.version, "recipe": state["recipe"],
+            "checkpoint": which, "epochs_completed": state["epoch"],
+            "trajectories_seen": state["trajectories_seen"], "compute_s": round(float(state["compute_s"]), 1),
+            "hardware": f"CPU ({platform.machine()}), {torch.get_num_threads()} threads",
+            "loss": "MSE between the output and the true unit vector of every frame",
+            "optimizer": "Adam",
+            "validation": {k: row.get(k) for k in ("val_loss", "val_rmsae_all", "val_rmsae_nonsilent")},
+            "validation_set": "fixed held-out-speaker trajectories (10% of the speakers), scene SNR",
+        },
+    }
+
+
+def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best", tracker: Any = None) -> Path:
+    """Load ``best.pt`` or ``checkpoint.pt`` of ``run_dir`` into the tracker and save its weights."""
+    from doabench.trackers.registry import make_tracker
+
+    if which not in ("best", "latest"):
+        raise ConfigError(f"export which must be best or latest, got {which!r}")
+    state = ckpt.load_checkpoint(Path(run_dir) / (ckpt.BEST if which == "best" else ckpt.LATEST))
+    tracker = tracker if tracker is not None else make_tracker(state["tracker"])
+    check_trainable(tracker, state["tracker"])
+    tracker.network.load_state_dict(state["model"])
+    tracker.network.eval()
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    tracker.save_weights(out_path, training_metadata(state, tracker, which))
+    return out_path

@@ -1,0 +1,74 @@
+"""What the trainer needs from a learned tracker (implemented by the classes in ``baselines/``).
+
+doabench never imports a model package: ``doabench train --tracker cross3d:8x16`` builds the
+tracker with :func:`doabench.make_tracker` and trains it through this small protocol::
+
+    tracker.features        # observation keys it reads, e.g. ("srp", "srp_max")
+    tracker.resolution      # (n_theta, n_phi) of the SRP maps, or None
+    tracker.frame_spec      # FrameSpec of its features (window, hop, fs)
+    tracker.network         # the torch.nn.Module being trained
+    tracker.network_input(features)   # dict of (B, T, ...) tensors -> the network's input tensor
+    tracker.network(x)      # -> (B, T, 3) direction vectors (not necessarily unit length)
+    tracker.save_weights(path, metadata)   # safetensors file plus metadata
+
+Optional: ``tracker.training_defaults`` (dict) with recipe overrides the paper gives for that
+model, e.g. ``{"t60": (0.0, 0.3)}`` for spectrogram models (section V-A); when absent the trainer
+applies that rule itself to trackers reading ``spectrogram``.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
+
+import torch
+
+from doabench.errors import ConfigError
+from doabench.framing import FrameSpec
+
+REQUIRED_ATTRIBUTES = ("network", "network_input", "save_weights", "features", "frame_spec")
+
+
+@runtime_checkable
+class TrainableTracker(Protocol):
+    """A tracker with a trainable network (see the module docstring)."""
+
+    features: Sequence[str]
+
+    @property
+    def resolution(self) -> tuple[int, int] | None: ...
+
+    @property
+    def frame_spec(self) -> FrameSpec: ...
+
+    @property
+    def network(self) -> torch.nn.Module: ...
+
+    def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """Features ``{kind: (B, T, ...)}`` (plus ``vad`` ``(B, T)``) -> the network's input."""
+        ...
+
+    def save_weights(self, path: Any, metadata: Mapping[str, Any]) -> Any:
+        """Write the network's weights and ``metadata`` (JSON-able) to ``path``."""
+        ...
+
+
+def check_trainable(tracker: Any, name: str) -> TrainableTracker:
+    """Return ``tracker`` if it implements the protocol, else raise a one-line ConfigError."""
+    missing = [a for a in REQUIRED_ATTRIBUTES if not hasattr(tracker, a)]
+    network = None if missing else getattr(tracker, "network")
+    if missing or not isinstance(network, torch.nn.Module):
+        raise ConfigError(f"tracker {name!r} is not a learned tracker (it has no trainable network); "
+                          "`doabench train` needs one such as cross3d:8x16 or gcc-cnn1d")
+    if not any(p.requires_grad for p in network.parameters()):
+        raise ConfigError(f"tracker {name!r} has no trainable parameters")
+    return tracker
+
+
+def training_defaults(tracker: Any) -> dict[str, Any]:
+    """Recipe overrides for this tracker: its own ``training_defaults`` or the paper's rule that
+    spectrogram models train with T60 in [0, 0.3] s (section V-A)."""
+    own = getattr(tracker, "training_defaults", None)
+    if isinstance(own, Mapping):
+        return dict(own)
+    if "spectrogram" in tuple(getattr(tracker, "features", ())):
+        return {"t60": (0.0, 0.3)}
+    return {}

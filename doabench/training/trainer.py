@@ -1,0 +1,329 @@
+"""The training loop shared by every learned tracker (see :mod:`.protocol`).
+
+Per epoch: the curriculum phase sets SNR range, batch size and learning rate; items come seeded
+from :mod:`.data`; features are computed in torch from each batch; the loss is the MSE between the
+network output ``(B, T, 3)`` and the true unit vectors of every frame (section IV-C); then the
+fixed validation set is scored (pooled RMSAE over all and over voice-active frames), and the
+checkpoint, ``log.csv`` and ``loss.png`` in the run folder are rewritten atomically.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from doabench.errors import ConfigError, NotFoundError
+from doabench.results.files import atomic_path, write_json, write_text
+from doabench.training import checkpoint as ckpt
+from doabench.training.cache import TrajectoryCache
+from doabench.training.data import CachedItems, SimulatedItems, ValidationItems, collate
+from doabench.training.pipeline import (DEFAULT_CACHE_ROOT, cache_folder, ensure_cache, scene_distribution,
+                                        speech_for_split)
+from doabench.training.protocol import check_trainable, training_defaults
+from doabench.training.recipes import Recipe
+
+FeatureFn = Callable[[torch.Tensor, torch.Tensor], Mapping[str, torch.Tensor]]
+CSV_COLUMNS = ("epoch", "phase_snr", "batch_size", "lr", "train_loss", "val_loss", "val_rmsae_all",
+               "val_rmsae_nonsilent", "n_cache", "trajectories_seen", "epoch_s", "compute_s")
+
+
+@dataclass
+class TrainOptions:
+    """What ``doabench train`` passes to :class:`Trainer`."""
+
+    tracker: str
+    out: Path
+    recipe: Recipe
+    task: str = "sim-train"
+    librispeech: str | None = None
+    cache_root: Path = DEFAULT_CACHE_ROOT
+    simulator: str = "builtin"
+    resume: bool = False
+    threads: int | None = None
+    progress: bool = True
+    max_epochs: int | None = None  # stop after this many epochs in this invocation
+    min_cache: int = 1             # wait for at least this many cached training trajectories
+    tracker_options: dict[str, Any] = field(default_factory=dict)
+
+
+def angular_errors_deg(estimates: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    """Great-circle angle in degrees between ``(..., 3)`` vectors (any length) and unit truth."""
+    cross = torch.linalg.norm(torch.cross(estimates, truth, dim=-1), dim=-1)
+    return torch.rad2deg(torch.atan2(cross, (estimates * truth).sum(-1)))
+
+
+class Trainer:
+    """Train ``options.tracker`` with ``options.recipe``; ``run()`` returns the epoch history.
+
+    ``tracker``, ``feature_fn``, ``train_cache`` and ``val_cache`` may be injected (tests, tools);
+    by default they come from the tracker id, :class:`~doabench.features.FeatureExtractor` and
+    the caches of :mod:`.pipeline`.
+    """
+
+    def __init__(self, options: TrainOptions, tracker: Any = None, feature_fn: FeatureFn | None = None,
+                 train_cache: Path | None = None, val_cache: Path | None = None,
+                 log: Callable[[str], None] = print) -> None:
+        from doabench.envs.registry import get_task_spec
+        from doabench.trackers.registry import make_tracker
+
+        self.options, self.log = options, log
+        self.out = Path(options.out)
+        if options.threads:
+            torch.set_num_threads(int(options.threads))
+        self.spec = get_task_spec(options.task)
+        self.saved = self._load_saved()
+        recipe = options.recipe
+        if self.saved is not None:  # the run keeps its recipe; only the epoch count may change
+            recipe = Recipe.from_dict(self.saved["recipe"]).replace(epochs=options.recipe.epochs)
+        torch.manual_seed(recipe.seed)  # network initialisation
+        self.tracker = tracker if tracker is not None else make_tracker(options.tracker, **options.tracker_options)
+        check_trainable(self.tracker, options.tracker)
+        if recipe.t60 is None and "t60" in (defaults := training_defaults(self.tracker)):
+            recipe = recipe.replace(t60=tuple(defaults["t60"]))
+        self.recipe = recipe
+        self.network: torch.nn.Module = self.tracker.network
+        self.frame_spec = self.tracker.frame_spec
+        self.feature_fn = feature_fn or self._default_features()
+        self.train_cache_dir = train_cache
+        self.val_cache_dir = val_cache
+        self.optimizer = torch.optim.Adam(self.network.parameters(), lr=recipe.phases[0].lr)
+        self.base_seed = int(self.spec.base_seed) + int(recipe.seed)
+
+    # -- setup ------------------------------------------------------------------------------
+    def _load_saved(self) -> dict[str, Any] | None:
+        path = self.out / ckpt.LATEST
+        if not path.exists():
+            return None
+        if not self.options.resume:
+            raise ConfigError(f"{self.out} already holds a training run; pass --resume to continue it "
+                              "or choose another --out")
+        return ckpt.load_checkpoint(path)
+
+    def _default_features(self) -> FeatureFn:
+        from doabench.arrays import get_array
+        from doabench.features import FeatureExtractor
+
+        kwargs = {}
+        if getattr(self.tracker, "spectrogram_frame_spec", None) is not None:
+            kwargs["spectrogram_frame_spec"] = self.tracker.spectrogram_frame_spec
+        extractor = FeatureExtractor(get_array(self.spec.array), kinds=tuple(self.tracker.features),
+                                     resolution=self.tracker.resolution or (16, 32),
+                                     mode=getattr(self.tracker, "delays", "nearest"),
+                                     frame_spec=self.frame_spec, **kwargs)
+        return lambda audio, vad: extractor(audio, vad)
+
+    def _val_cache(self) -> TrajectoryCache:
+        if self.val_cache_dir is None:
+            folder = cache_folder(self.options.cache_root, self.spec, self.recipe, "val")
+            if len(_available(folder)) < self.recipe.val_trajectories:
+                self.log(f"building the validation cache {folder} ({self.recipe.val_trajectories} trajectories)")
+                ensure_cache(self.options.cache_root, self.spec, self.recipe, "val", self.recipe.val_trajectories,
+                             self.options.librispeech, self.options.simulator, self.log)
+            self.val_cache_dir = folder
+        return TrajectoryCache(self.val_cache_dir)
+
+    def _train_cache(self) -> TrajectoryCache:
+        if self.train_cache_dir is None:
+            self.train_cache_dir = cache_folder(self.options.cache_root, self.spec, self.recipe, "train")
+        need = min(self.options.min_cache, self.recipe.cache_size)
+        while len(_contiguous(_available(self.train_cache_dir))) < need:
+            if not (self.train_cache_dir / "manifest.json").exists():
+                raise NotFoundError(f"no training cache at {self.train_cache_dir}; build it first with "
+                                    "`doabench train ... --build-cache`")
+            self.log(f"waiting for {need} cached trajectories in {self.train_cache_dir}")
+            time.sleep(30)
+        return TrajectoryCache(self.train_cache_dir)
+
+    def _epoch_items(self, epoch: int, snr: tuple[float, float]):
+        r = self.recipe
+        if r.data == "cache":
+            cache = self._train_cache()
+            n_cache = min(len(_contiguous(cache.available())), r.cache_size)
+            return CachedItems(cache, n_cache, self.base_seed, epoch, r.trajectories_per_epoch, snr,
+                               self.frame_spec), n_cache
+        from doabench.acoustics.simulators import get_simulator
+        from doabench.arrays import get_array
+
+        if not hasattr(self, "_sim_parts"):
+            self._sim_parts = (speech_for_split(self.spec, "train", self.options.librispeech, r.val_speaker_fraction),
+                               get_array(self.spec.array), get_simulator(self.options.simulator))
+        speech, array, sim = self._sim_parts
+        dist = scene_distribution(self.spec, r).replace(snr=tuple(snr))
+        return SimulatedItems(dist, speech, array, sim, self.base_seed, epoch, r.trajectories_per_epoch,
+                              self.frame_spec), 0
+
+    # -- one step, validation ------------------------------------------------------------------
+    def network_input(self, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        with torch.no_grad():
+            feats = dict(self.feature_fn(batch["audio"], batch["sample_vad"]))
+            return self.tracker.network_input(feats)
+
+    def forward(self, x: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+        y = self.network(x)
+        if y.shape != truth.shape:
+            raise ConfigError(f"tracker {self.options.tracker!r}: network output {tuple(y.shape)} does not match "
+                              f"the truth {tuple(truth.shape)} (B, T, 3)")
+        return y
+
+    def train_step(self, batch: Mapping[str, torch.Tensor]) -> float:
+        """One Adam step on ``batch``; returns the loss before the step."""
+        self.network.train()
+        x = self.network_input(batch)
+        loss = torch.nn.functional.mse_loss(self.forward(x, batch["truth"]), batch["truth"])
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        return float(loss.detach())
+
+    def prepare_validation(self) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """Network inputs, truth and frame VAD of the fixed validation set (computed once)."""
+        items = ValidationItems(self._val_cache(), self.recipe.val_trajectories, self.base_seed, self.frame_spec)
+        loader = DataLoader(items, batch_size=4, shuffle=False, num_workers=0, collate_fn=collate)
+        return [(self.network_input(b), b["truth"], b["vad"]) for b in loader]
+
+    @torch.no_grad()
+    def validate(self, val: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]) -> dict[str, float]:
+        self.network.eval()
+        losses, errors, active = [], [], []
+        for x, truth, vad in val:
+            y = self.forward(x, truth)
+            losses.append(torch.nn.functional.mse_loss(y, truth, reduction="none").mean(-1).flatten())
+            errors.append(angular_errors_deg(y, truth).flatten())
+            active.append(vad.flatten())
+        e, a = torch.cat(errors), torch.cat(active)
+        rms = lambda v: float(torch.sqrt(torch.mean(v**2))) if v.numel() else math.nan  # noqa: E731
+        return {"val_loss": float(torch.cat(losses).mean()), "val_rmsae_all": rms(e), "val_rmsae_nonsilent": rms(e[a])}
+
+    # -- the loop ---------------------------------------------------------------------------------
+    def run(self) -> list[dict[str, Any]]:
+        self.out.mkdir(parents=True, exist_ok=True)
+        history: list[dict[str, Any]] = []
+        start, best, compute_s, seen = 0, math.inf, 0.0, 0
+        if self.saved is not None:
+            s = self.saved
+            self.network.load_state_dict(s["model"])
+            self.optimizer.load_state_dict(s["optimizer"])
+            ckpt.set_rng_state(s["rng"])
+            start, history, best = int(s["epoch"]), list(s["history"]), float(s["best"])
+            compute_s, seen = float(s["compute_s"]), int(s["trajectories_seen"])
+            self.log(f"resuming {self.out} after epoch {start}")
+        write_json(self.out / "config.json", self.describe())
+        val = self.prepare_validation()
+        ran = 0
+        for epoch in range(start, self.recipe.epochs):
+            if self.options.max_epochs is not None and ran >= self.options.max_epochs:
+                break
+            t0 = time.perf_counter()
+            phase = self.recipe.phase(epoch)
+            for group in self.optimizer.param_groups:
+                group["lr"] = phase.lr
+            items, n_cache = self._epoch_items(epoch, phase.snr)
+            loader = DataLoader(items, batch_size=phase.batch_size, shuffle=False, collate_fn=collate,
+                                num_workers=self.recipe.num_workers,
+                                persistent_workers=False)
+            losses = []
+            bar = _progress(loader, f"epoch {epoch + 1}/{self.recipe.epochs}", self.options.progress)
+            for batch in bar:
+                losses.append(self.train_step(batch))
+                if hasattr(bar, "set_postfix"):
+                    bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
+            metrics = self.validate(val)
+            epoch_s = time.perf_counter() - t0
+            compute_s += epoch_s
+            seen += len(items)
+            row = {"epoch": epoch + 1, "phase_snr": f"{phase.snr[0]:g}-{phase.snr[1]:g}",
+                   "batch_size": phase.batch_size, "lr": phase.lr, "train_loss": float(np.mean(losses)),
+                   **metrics, "n_cache": n_cache, "trajectories_seen": seen, "epoch_s": round(epoch_s, 1),
+                   "compute_s": round(compute_s, 1)}
+            history.append(row)
+            state = {"epoch": epoch + 1, "model": self.network.state_dict(), "optimizer": self.optimizer.state_dict(),
+                     "rng": ckpt.rng_state(), "recipe": self.recipe.to_dict(), "tracker": self.options.tracker,
+                     "task": self.spec.id, "history": history, "compute_s": compute_s, "trajectories_seen": seen}
+            score = metrics["val_rmsae_all"]
+            if score < best:
+                best = score
+                ckpt.save_checkpoint(self.out / ckpt.BEST, {**state, "best": best})
+            ckpt.save_checkpoint(self.out / ckpt.LATEST, {**state, "best": best})
+            write_log(self.out / "log.csv", history)
+            plot_history(self.out / "loss.png", history, self.options.tracker)
+            self.log(f"epoch {epoch + 1}: train loss {row['train_loss']:.4f}, val loss {metrics['val_loss']:.4f}, "
+                     f"val RMSAE {metrics['val_rmsae_all']:.2f} deg (non-silent {metrics['val_rmsae_nonsilent']:.2f}),"
+                     f" {epoch_s:.0f} s")
+            ran += 1
+        return history
+
+    def describe(self) -> dict[str, Any]:
+        return {"tracker": self.options.tracker, "task": self.spec.id, "task_version": self.spec.version,
+                "recipe": self.recipe.to_dict(), "frame": self.frame_spec.to_dict(),
+                "features": list(self.tracker.features),
+                "resolution": None if self.tracker.resolution is None else list(self.tracker.resolution),
+                "train_cache": None if self.train_cache_dir is None else str(self.train_cache_dir),
+                "threads": torch.get_num_threads(), "torch": torch.__version__}
+
+
+def _available(folder: Path) -> list[int]:
+    return sorted(int(p.stem) for p in Path(folder).glob("[0-9]*.npz")) if Path(folder).is_dir() else []
+
+
+def _contiguous(indices: list[int]) -> list[int]:
+    """The leading run ``0, 1, 2, ...`` of sorted indices (items are used in order)."""
+    n = 0
+    for i in indices:
+        if i != n:
+            break
+        n += 1
+    return list(range(n))
+
+
+def _progress(loader, desc: str, enabled: bool):
+    if not enabled:
+        return loader
+    import sys
+
+    from tqdm import tqdm
+
+    tty = sys.stderr.isatty()
+    return tqdm(loader, desc=desc, leave=tty, mininterval=0.5 if tty else 60.0, dynamic_ncols=True)
+
+
+def write_log(path: Path, history: list[dict[str, Any]]) -> None:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(history)
+    write_text(path, buf.getvalue())
+
+
+def plot_history(path: Path, history: list[dict[str, Any]], title: str) -> None:
+    """Loss curves (train, validation) and validation RMSAE per epoch, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    epochs = [h["epoch"] for h in history]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+    ax1.plot(epochs, [h["train_loss"] for h in history], label="train")
+    ax1.plot(epochs, [h["val_loss"] for h in history], label="validation")
+    ax1.set_xlabel("epoch")
+    ax1.set_ylabel("MSE loss")
+    ax1.set_yscale("log")
+    ax1.legend()
+    ax2.plot(epochs, [h["val_rmsae_all"] for h in history], label="all frames")
+    ax2.plot(epochs, [h["val_rmsae_nonsilent"] for h in history], label="non-silent frames")
+    ax2.set_xlabel("epoch")
+    ax2.set_ylabel("validation RMSAE (deg)")
+    ax2.legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)

@@ -1,0 +1,198 @@
+"""doabench train: one step learns, resume is exact, the curriculum switches, the speaker split
+holds, CLI errors are one line. Tiny synthetic caches and a tiny tracker keep it fast."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import doabench
+from doabench.framing import FrameSpec
+from doabench.training.cache import TrajectoryCache, write_item
+from doabench.training.data import CachedItems, collate
+from doabench.training.recipes import Phase, Recipe, cpu_recipe, paper_recipe
+from doabench.training.trainer import TrainOptions, Trainer
+
+M, FRAMES = 4, 8
+FS = FrameSpec(window=256, hop=192)
+L = FS.window + FS.hop * (FRAMES - 1)
+
+
+class TinyNet(torch.nn.Module):
+    """Causal conv over frames: ``(B, T, M)`` -> ``(B, T, 3)``."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.conv = torch.nn.Conv1d(M, 3, 3)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.conv(torch.nn.functional.pad(x.transpose(1, 2), (2, 0)))
+        return torch.tanh(y.transpose(1, 2))
+
+
+class TinyTracker(doabench.Tracker):
+    """Just enough learned tracker for the training protocol."""
+
+    features = ("energy",)
+
+    def __init__(self, spec=None, **options):
+        super().__init__(spec, **options)
+        self.network = TinyNet()
+
+    @property
+    def frame_spec(self):
+        return FS
+
+    def network_input(self, features):
+        return features["energy"]  # (B, T, M)
+
+    def save_weights(self, path, metadata):
+        from safetensors.torch import save_file
+
+        save_file(self.network.state_dict(), str(path), metadata={"doabench": json.dumps(metadata)})
+
+
+def tiny_tracker() -> TinyTracker:
+    torch.manual_seed(0)
+    return TinyTracker()
+
+
+def energy_features(audio: torch.Tensor, vad: torch.Tensor) -> dict[str, torch.Tensor]:
+    frames = audio.unfold(-1, FS.window, FS.hop)  # (B, M, T, K)
+    return {"energy": torch.log(frames.pow(2).mean(-1) + 1e-8).transpose(1, 2)}
+
+
+def make_cache(folder: Path, n: int, seed: int) -> Path:
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True)
+    (folder / "manifest.json").write_text(json.dumps({"format": 1, "synthetic": True}))
+    for i in range(n):
+        write_item(folder / f"{i:05d}.npz", {
+            "audio": (rng.standard_normal((M, L)) * rng.uniform(0.2, 1.0, (M, 1))).astype(np.float16),
+            "scale": np.float64(1.0), "signal_power": np.float64(0.3), "vad": rng.random(L) < 0.9,
+            "trajectory": rng.uniform(1, 3, (3, 3)), "array_position": np.array([2.0, 2.0, 1.0]),
+            "snr_db": np.float64(rng.uniform(5, 30)), "t60": np.float64(0.5), "seed": np.int64(i)})
+    return folder
+
+
+@pytest.fixture
+def caches(tmp_path):
+    return make_cache(tmp_path / "train", 6, 1), make_cache(tmp_path / "val", 2, 2)
+
+
+def tiny_recipe(**kw) -> Recipe:
+    base = dict(name="tiny", epochs=2, trajectories_per_epoch=4, data="cache", cache_size=6, val_trajectories=2,
+                phases=(Phase(0, (30.0, 30.0), 2, 1e-2), Phase(1, (5.0, 30.0), 4, 1e-3)))
+    return Recipe(**{**base, **kw})
+
+
+def make_trainer(out: Path, caches, recipe: Recipe | None = None, **kw) -> Trainer:
+    opts = TrainOptions(tracker="tiny", out=out, recipe=recipe or tiny_recipe(), progress=False, **kw)
+    return Trainer(opts, tracker=tiny_tracker(), feature_fn=energy_features, train_cache=caches[0],
+                   val_cache=caches[1], log=lambda m: None)
+
+
+def test_train_step_reduces_loss_on_a_fixed_batch(tmp_path, caches):
+    trainer = make_trainer(tmp_path / "run", caches)
+    items = CachedItems(TrajectoryCache(caches[0]), 6, 123, 0, 4, (30.0, 30.0), FS)
+    batch = collate([items[k] for k in range(4)])
+    losses = [trainer.train_step(batch) for _ in range(15)]
+    assert losses[-1] < 0.8 * losses[0]
+
+
+def test_resume_continues_exactly(tmp_path, caches):
+    straight = make_trainer(tmp_path / "a", caches)
+    straight.run()
+    first = make_trainer(tmp_path / "b", caches, max_epochs=1)
+    assert len(first.run()) == 1
+    resumed = make_trainer(tmp_path / "b", caches, resume=True)
+    history = resumed.run()
+    assert [h["epoch"] for h in history] == [1, 2]
+    for k, v in straight.network.state_dict().items():
+        assert torch.equal(v, resumed.network.state_dict()[k]), k
+    a = [h["val_loss"] for h in straight_history(tmp_path / "a")]
+    assert a == [h["val_loss"] for h in history]
+    assert (tmp_path / "b" / "log.csv").read_text().count("\n") == 3
+    assert (tmp_path / "b" / "loss.png").stat().st_size > 1000
+
+
+def straight_history(run: Path) -> list[dict]:
+    from doabench.training.checkpoint import load_checkpoint
+
+    return load_checkpoint(run / "checkpoint.pt")["history"]
+
+
+def test_existing_run_needs_resume(tmp_path, caches):
+    make_trainer(tmp_path / "a", caches, max_epochs=1).run()
+    with pytest.raises(doabench.DoabenchError, match="--resume"):
+        make_trainer(tmp_path / "a", caches)
+
+
+def test_curriculum_switches_snr_batch_and_lr(tmp_path, caches):
+    r = tiny_recipe()
+    assert r.phase(0).snr == (30.0, 30.0) and r.phase(1).batch_size == 4 and r.phase(5).lr == 1e-3
+    p = paper_recipe()
+    assert (p.phase(19).snr, p.phase(19).batch_size, p.phase(19).lr) == ((30.0, 30.0), 5, 1e-4)
+    assert (p.phase(20).snr, p.phase(20).batch_size, p.phase(20).lr) == ((5.0, 30.0), 10, 1e-5)
+    assert (p.epochs, p.trajectories_per_epoch) == (80, 585)
+    assert cpu_recipe().data == "cache"
+    trainer = make_trainer(tmp_path / "run", caches)
+    history = trainer.run()
+    assert [(h["phase_snr"], h["batch_size"], h["lr"]) for h in history] == [("30-30", 2, 1e-2), ("5-30", 4, 1e-3)]
+    assert trainer.optimizer.param_groups[0]["lr"] == 1e-3
+
+
+def test_items_add_noise_at_the_phase_snr(caches):
+    cache = TrajectoryCache(caches[0])
+    items = CachedItems(cache, 6, 7, 0, 3, (20.0, 20.0), FS)
+    rng = np.random.default_rng(__import__("doabench.envs.sources", fromlist=["x"]).episode_seed(7, 0, 1))
+    clean = cache.load(int(rng.integers(6)))["audio"].astype(np.float32)
+    noise = items[1]["audio"].numpy() - clean
+    assert 10 * np.log10(0.3 / np.mean(noise**2)) == pytest.approx(20.0, abs=0.1)
+    assert torch.equal(items[1]["audio"], items[1]["audio"])  # seeded: the same item twice
+
+
+def _fake_librispeech(root: Path, n_speakers: int) -> Path:
+    subset = root / "train-clean-100"
+    for s in range(n_speakers):
+        chapter = subset / str(100 + s) / str(1000 + s)
+        chapter.mkdir(parents=True)
+        (chapter / f"{100 + s}-{1000 + s}-0000.flac").touch()
+    return root
+
+
+def test_validation_speakers_never_train(tmp_path):
+    from doabench.training.splits import SplitLibriSpeechSource, validation_speakers
+
+    root = _fake_librispeech(tmp_path, 40)
+    train = SplitLibriSpeechSource(root, "train-clean-100", "train")
+    val = SplitLibriSpeechSource(root, "train-clean-100", "val")
+    assert len(val.speakers) == 4 and not train.speakers & val.speakers
+    assert train.speakers | val.speakers == {str(100 + s) for s in range(40)}
+    assert val.speakers == validation_speakers(train.speakers | val.speakers)  # deterministic
+    assert {s for s, _ in train.chapters}.isdisjoint(val.speakers)
+
+
+def test_cli_rejects_unknown_and_non_learned_trackers(capsys, tmp_path):
+    from doabench.cli.main import main
+
+    for tracker, needle in (("no-such-tracker", "unknown tracker"), ("srp-max", "not a learned tracker")):
+        assert main(["train", "--tracker", tracker, "--out", str(tmp_path / "r")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert needle in err and "\n" not in err and "Traceback" not in err
+
+
+def test_export_writes_weights_with_training_metadata(tmp_path, caches):
+    from safetensors import safe_open
+
+    from doabench.training.export import export_weights
+
+    make_trainer(tmp_path / "run", caches, max_epochs=1).run()
+    path = export_weights(tmp_path / "run", tmp_path / "w.safetensors", "best", tracker=tiny_tracker())
+    with safe_open(str(path), "pt") as f:
+        meta = json.loads(f.metadata()["doabench"])
+    assert meta["training"]["epochs_completed"] == 1 and meta["training"]["trajectories_seen"] == 4
+    assert meta["doabench_version"] == doabench.__version__
