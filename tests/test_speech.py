@@ -101,7 +101,11 @@ def test_embedded_source_chunks():
     assert np.array_equal(again.signal, chunk.signal) and np.array_equal(again.vad, chunk.vad)
     other = src.sample(np.random.default_rng(4), 7.5, FS)
     assert not np.array_equal(other.signal, chunk.signal)
-    assert get_speech_source(None).name == "embedded" or get_speech_source(None).name == "librispeech"
+
+
+def test_default_source_is_embedded_without_librispeech(monkeypatch):
+    monkeypatch.delenv("DOABENCH_LIBRISPEECH", raising=False)
+    assert isinstance(get_speech_source(None), EmbeddedSpeechSource)
 
 
 def test_embedded_source_other_rate():

@@ -107,6 +107,18 @@ def download_file(url: str, target: Path, md5: str | None, retries: int = 3, pro
     return target
 
 
+def _safe_extractall(tar: tarfile.TarFile, into: Path) -> None:
+    """Extract refusing absolute paths, ``..`` and links (tarfile's "data" filter when present)."""
+    if hasattr(tarfile, "data_filter"):  # Python >= 3.10.12 / 3.11.4
+        tar.extractall(into, filter="data")
+        return
+    for m in tar.getmembers():
+        parts = Path(m.name).parts
+        if m.name.startswith("/") or ".." in parts or not (m.isfile() or m.isdir()):
+            raise tarfile.TarError(f"refusing archive member {m.name!r}")
+    tar.extractall(into)
+
+
 def _extract(archive: Path, dest: Path, subset: str) -> Path:
     """Unpack ``archive`` into a temporary folder of ``dest`` and move the subset into place."""
     final = dest / "LibriSpeech" / subset
@@ -114,7 +126,7 @@ def _extract(archive: Path, dest: Path, subset: str) -> Path:
     try:
         try:
             with tarfile.open(archive, "r:*") as tar:
-                tar.extractall(tmp, filter="data")  # the data filter refuses absolute/outside paths
+                _safe_extractall(tar, tmp)
         except (tarfile.TarError, OSError, EOFError) as exc:
             raise InputError(f"{archive.name}: cannot extract ({exc})") from None
         src = tmp / "LibriSpeech" / subset
