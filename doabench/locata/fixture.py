@@ -15,7 +15,7 @@ Scenes (world frame, a 6 x 5 x 3 m room, NAO geometry):
 
 Audio: speech (the embedded clips) or noise bursts at 16 kHz, propagated to the moving
 microphones either with doabench's room simulator (``simulator="builtin"`` or another backend name,
-segment-wise for moving arrays) or in free field with exact time-varying fractional delays
+segment-wise, 0.25 s Hann-crossfaded segments) or in free field with exact time-varying fractional delays
 (``"freefield"``), white noise added, then upsampled to 48 kHz with ``resample_poly``. The clocks
 differ on purpose: poses and required times start 4 ms before the array audio, the source audio
 10 ms before; a block of required times is flagged invalid.
@@ -235,35 +235,38 @@ def _freefield(source: np.ndarray, lead: int, t: np.ndarray, motion: Motion, loc
 
 
 def _room_simulated(source: np.ndarray, lead: int, t: np.ndarray, motion: Motion, local: np.ndarray, fs: int,
-                    backend: str, t60: float, segment_s: float = 0.1) -> np.ndarray:
-    """Room simulation with a doabench backend, segment by segment: the source signal is split
-    into Hann-crossfaded segments (summing to one); each is simulated from the source position
-    to the microphone positions at the segment's centre and the results are overlap-added."""
+                    backend: str, t60: float, seed: int, segment_s: float = 0.25) -> np.ndarray:
+    """Room simulation with a doabench backend's RIRs, segment by segment: the signal is split
+    into 50 %-overlapping Hann-windowed segments (the windows sum to one); segment ``k`` is
+    convolved with the RIRs from the source to the microphones at the segment's centre time and
+    the results are overlap-added. A static array needs one RIR call for all segments."""
+    from scipy.signal import oaconvolve
+
     from doabench.acoustics.room import Room
     from doabench.acoustics.simulators import get_simulator
 
     sim = get_simulator(backend)
     room = Room(ROOM_DIMS, t60)
-    n = len(t)
-    hop = int(segment_s * fs)
-    tail = int(max(t60, 0.05) * fs) + 2 * int(max(ROOM_DIMS) * 2 / SPEED_OF_SOUND * fs)
+    n, hop = len(t), int(segment_s * fs)
+    starts = np.arange(-hop, n, hop)
+    centres = t[np.clip(starts + hop, 0, n - 1)]
+    sources = motion.source_position(centres)  # (K, 3)
+    mics = motion.array_position(centres)[:, None, :] + np.einsum("kij,mj->kmi", motion.array_rotation(centres),
+                                                                  local)  # (K, M, 3)
+    if np.allclose(mics, mics[:1]):
+        rirs = np.asarray(sim.rirs(room, sources, mics[0], fs, seed=seed), np.float64)  # (K, M, taps)
+    else:
+        rirs = [np.asarray(sim.rirs(room, sources[k:k + 1], mics[k], fs, seed=seed + k), np.float64)[0]
+                for k in range(len(starts))]
     sig = source[lead:lead + n]
-    out = np.zeros((local.shape[0], n + tail))
     window = np.hanning(2 * hop + 1)[:-1]  # periodic Hann: 50 % overlapped copies sum to one
-    for start in range(-hop, n, hop):
+    out = np.zeros((local.shape[0], n + max(r.shape[-1] for r in rirs) + 2 * hop))
+    for k, start in enumerate(starts):
         lo, hi = max(start, 0), min(start + 2 * hop, n)
-        if hi <= lo:
-            continue
         seg = sig[lo:hi] * window[lo - start:hi - start]
-        if not np.any(seg):
-            continue
-        centre = np.array([min(max(start + hop, 0), n - 1)])
-        tc = t[centre]
-        mics = motion.array_position(tc)[0] + local @ motion.array_rotation(tc)[0].T
-        padded = np.concatenate([seg, np.zeros(tail)])
-        y = sim.simulate(room, motion.source_position(tc), mics, padded, fs)
-        y = np.asarray(y.detach().cpu().numpy() if hasattr(y, "detach") else y, np.float64)
-        out[:, lo:lo + y.shape[1]] += y[:, : out.shape[1] - lo]
+        if hi > lo and np.any(seg):
+            y = oaconvolve(seg[None, :], rirs[k], axes=-1)  # (M, len + taps - 1)
+            out[:, lo:lo + y.shape[1]] += y
     return out[:, :n]
 
 
@@ -286,7 +289,8 @@ def write_recording(root: Path, split: str, task: int, number: int, duration_s: 
     if simulator == "freefield":
         mix = _freefield(source, lead16, t16, motion, array.positions, FS_SIM)
     else:
-        mix = _room_simulated(source, lead16, t16, motion, array.positions, FS_SIM, simulator, t60)
+        mix = _room_simulated(source, lead16, t16, motion, array.positions, FS_SIM, simulator, t60,
+                              int(rng.integers(2**31)))
     active = vad[lead16:]
     power = float(np.mean(mix[:, active] ** 2)) if active.any() else float(np.mean(mix ** 2))
     mix = mix + rng.standard_normal(mix.shape) * math.sqrt(power / 10 ** (snr_db / 10))
