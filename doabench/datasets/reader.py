@@ -117,14 +117,20 @@ class DatasetFile:
             path = self.item_path(self.resolve(name))
             if path not in g:
                 raise InputError(f"{self.path}: episode {index} lacks {path} (corrupt file?)")
-            out[name] = g[path][()]
+            out[name] = self._load(g, path, index)
         return out
+
+    def _load(self, g, path: str, index: int) -> np.ndarray:
+        try:
+            return g[path][()]
+        except (OSError, KeyError) as exc:
+            raise InputError(f"{self.path}: episode {index}: cannot read {path} (corrupt file: {exc})") from None
 
     def truth(self, index: int) -> dict[str, np.ndarray]:
         """Per-frame truth: directions (T, 3), elevation, azimuth, times (T,), vad (T,) bool."""
         g = self.group(index)
-        out = {k: g[f"truth/{k}"][()] for k in TRUTH_KEYS}
-        out["vad"] = np.asarray(g["vad"][()], bool)
+        out = {k: self._load(g, f"truth/{k}", index) for k in TRUTH_KEYS}
+        out["vad"] = np.asarray(self._load(g, "vad", index), bool)
         return out
 
     def metadata(self, index: int) -> dict[str, Any]:

@@ -161,7 +161,7 @@ def open_h5(path: str | Path, mode: str = "r", check_schema: bool = True):
         f = h5py.File(path, mode)
     except OSError as exc:
         reason = str(exc).split("(")[-1].rstrip(")") if "(" in str(exc) else str(exc)
-        if "lock" in str(exc).lower():
+        if "unable to lock" in str(exc).lower():
             raise InputError(f"{path} is open for writing by another process ({reason})") from None
         raise InputError(f"{path} cannot be read: truncated or corrupt HDF5 file ({reason})") from None
     if check_schema:

@@ -1,0 +1,51 @@
+"""``doabench make-dataset --task T --episodes N --features ... --out data.h5``."""
+from __future__ import annotations
+
+import argparse
+
+from doabench.cli.common import add_corpus_options, corpus_kwargs
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "make-dataset", help="generate an HDF5 dataset of a task's episodes (features, truth, scenes)",
+        description="Simulate a task's first N episodes and store their features, per-frame truth, VAD and scene "
+                    "parameters in one HDF5 file (schema doabench.dataset/1, docs/hdf5-schema.md). Episode i is the "
+                    "same whatever N, --shard or --workers. Killed at any moment, the same command resumes from "
+                    "the journal folder <out>.parts/.")
+    p.add_argument("--task", required=True, help="task id (doabench list tasks), e.g. sim-train")
+    p.add_argument("--episodes", type=int, help="generate episodes 0..N-1 (default: all of the task's)")
+    p.add_argument("--features", default="srp:16x32",
+                   help="comma-separated: srp:NxM (several resolutions allowed; stores srp_max too), gcc, "
+                        "spectrogram, audio (default srp:16x32)")
+    p.add_argument("--shard", help="K/N: only episodes i with i %% N == K-1 (for cluster array jobs)")
+    p.add_argument("--workers", type=int, default=1, help="simulation processes (default 1)")
+    p.add_argument("--float16", action="store_true", help="store srp, gcc and spectrogram maps as float16")
+    p.add_argument("--sample-vad", action="store_true", help="also store the per-sample VAD (always with audio)")
+    p.add_argument("--compression", choices=["gzip", "lzf", "none"], default="gzip",
+                   help="chunk compression (default gzip level 4 with shuffle)")
+    p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
+    p.add_argument("--out", required=True, help="output file, e.g. data.h5")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_corpus_options(p)
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from doabench.datasets.generate import make_dataset
+    from doabench.datasets.schema import parse_shard
+
+    options = corpus_kwargs(args)
+    backend = options.pop("backend")
+    result = make_dataset(args.task, args.out, episodes=args.episodes, features=args.features,
+                          shard=parse_shard(args.shard), workers=args.workers, float16=args.float16,
+                          sample_vad=args.sample_vad, compression=args.compression, delays=args.delays,
+                          device=args.device, backend=backend, progress=not args.quiet, **options)
+    size = result.path.stat().st_size
+    if result.already_complete:
+        print(f"{result.path} is already complete ({result.n_episodes} episodes); nothing to do")
+        return 0
+    resumed = f", {result.resumed} from an earlier run" if result.resumed else ""
+    print(f"wrote {result.path}: {result.n_episodes} episodes{resumed}, {size / result.n_episodes / 1e6:.2f} MB per "
+          f"episode, {result.episodes_per_minute:.1f} episodes/min")
+    return 0
