@@ -1,0 +1,310 @@
+"""Datasets: make-dataset (schema, shards, workers, SIGKILL + resume), info, merge, EpisodeDataset, file: replay."""
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+import doabench
+from doabench.cli.main import main
+from doabench.datasets import DatasetFile, EpisodeDataset, make_dataset, merge_datasets
+from doabench.datasets.generate import parts_dir, partial_path
+from doabench.datasets.layout import read_episode
+from doabench.datasets.merge import records_equal
+from doabench.datasets.schema import SCHEMA, parse_features, parse_shard, shard_indices
+from doabench.envs.env import DoaEnv
+from doabench.errors import ConfigError, InputError, NotFoundError
+
+from conftest import ROOT
+
+TASK = "ds-tiny-test"
+# 1 s scenes in small, mildly reverberant rooms: about 0.3 s of simulation per episode.
+TASK_TOML = f"""
+id = "{TASK}"
+version = 2
+kind = "simulated"
+episodes = 4
+base_seed = 777
+[speech]
+corpus = "embedded"
+[scene]
+duration_s = 1.0
+n_points = 8
+t60 = [0.2, 0.3]
+room_max = [5.0, 5.0, 3.0]
+"""
+FEATURES = "srp:4x8,srp:8x16,gcc,audio"
+
+
+@pytest.fixture(scope="module")
+def task_dir(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("tasks")
+    (folder / f"{TASK}.toml").write_text(TASK_TOML)
+    doabench.register_task(folder / f"{TASK}.toml")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def reference(task_dir, tmp_path_factory) -> Path:
+    """All 4 episodes made at once by one process: what every other way of making them must equal."""
+    out = tmp_path_factory.mktemp("ref") / "all.h5"
+    make_dataset(TASK, out, features=FEATURES, progress=False)
+    return out
+
+
+def assert_same_episodes(a: Path, b: Path, indices=None) -> None:
+    with DatasetFile(a) as fa, DatasetFile(b) as fb:
+        assert fa.items == fb.items
+        want = fa.indices if indices is None else indices
+        assert fb.indices == want or indices is not None
+        for i in want:
+            ra, rb = read_episode(fa.group(i)), read_episode(fb.group(i))
+            assert records_equal(ra, rb), f"episode {i} differs"
+
+
+def test_feature_and_shard_parsing():
+    reqs = parse_features("gcc, srp:16x32,srp:8x16,srp:16x32")
+    assert [r.name for r in reqs] == ["srp:8x16", "srp:16x32", "gcc"]
+    assert parse_features("srp")[0].name == "srp:16x32"
+    for bad in ("srp:16", "mfcc", "gcc:4x8", ""):
+        with pytest.raises(ConfigError):
+            parse_features(bad)
+    assert parse_shard("2/3") == (2, 3) and parse_shard(None) is None
+    for bad in ("0/3", "4/3", "a/b", "3"):
+        with pytest.raises(ConfigError, match="--shard"):
+            parse_shard(bad)
+    assert shard_indices(7, (2, 3)) == [1, 4] and shard_indices(3, None) == [0, 1, 2]
+
+
+def test_file_schema_attributes_and_episode_contents(reference):
+    with h5py.File(reference, "r") as f:
+        assert f.attrs["doabench_schema"] == SCHEMA
+        assert f.attrs["task_id"] == TASK and f.attrs["task_version"] == 2
+        config = json.loads(f.attrs["config"])
+        assert config["features"] == ["srp:4x8", "srp:8x16", "gcc", "audio"] and config["episodes"] == 4
+        assert config["task"]["params"]["scene"]["duration_s"] == 1.0
+        versions = json.loads(f.attrs["versions"])
+        assert {"doabench", "torch", "numpy"} <= set(versions) and f.attrs["backend"] == "builtin"
+        g = f["episodes/000002"]
+        assert g.attrs["complete"] and g.attrs["index"] == 2 and "seed" in g.attrs
+        srp = g["features/srp_8x16"]
+        assert srp.shape[1:] == (8, 16) and srp.dtype == np.float32
+        assert srp.chunks == srp.shape and srp.compression == "gzip"  # one chunk per episode dataset
+        assert g["features/srp_max_4x8"].shape[1:] == (2,)
+        assert g["audio"].shape == (12, 16000) and g["sample_vad"].shape == (16000,)
+        assert g["truth/directions"].shape == (srp.shape[0], 3) and g["vad"].dtype == bool
+        assert g["scene/room_dims"].shape == (3,) and g["scene/trajectory"].shape == (8, 3)
+        assert 0.2 <= g["scene"].attrs["t60"] <= 0.3 and "snr_db" in g["scene"].attrs
+        meta = json.loads(g["metadata"][()])
+        assert meta["seed"] == g.attrs["seed"] and meta["scene"]["seed"] == g.attrs["seed"]
+
+
+def test_stored_features_and_truth_match_the_live_environment(reference):
+    env = DoaEnv(TASK, features=("srp", "srp_max", "gcc"), resolution=(8, 16))
+    _, feats, truth = env.load_episode(1)
+    with DatasetFile(reference) as f:
+        stored = f.read(1, ["srp:8x16", "srp_max:8x16", "gcc"])
+        stored_truth = f.truth(1)
+    # The dataset computes with one torch thread, the environment with the default: last bits may differ.
+    np.testing.assert_allclose(stored["srp:8x16"], feats["srp"], atol=1e-5)
+    np.testing.assert_allclose(stored["srp_max:8x16"], feats["srp_max"], atol=1e-5)
+    np.testing.assert_allclose(stored["gcc"], feats["gcc"], atol=1e-5)
+    for k in ("directions", "elevation", "azimuth", "times", "vad"):
+        np.testing.assert_array_equal(stored_truth[k], truth[k])
+
+
+def test_two_shards_merged_equal_one_run_whatever_the_workers(reference, tmp_path):
+    a, b = tmp_path / "a.h5", tmp_path / "b.h5"
+    make_dataset(TASK, a, features=FEATURES, shard=(1, 2), progress=False)
+    make_dataset(TASK, b, features=FEATURES, shard=(2, 2), workers=2, progress=False)
+    with DatasetFile(b) as f:
+        assert f.indices == [1, 3]
+    assert main(["dataset", "merge", str(a), str(b), "--out", str(tmp_path / "m.h5")]) == 0
+    assert_same_episodes(reference, tmp_path / "m.h5")
+    with DatasetFile(tmp_path / "m.h5") as f:
+        assert f.indices == [0, 1, 2, 3] and f.requested == [0, 1, 2, 3] and f.config["shard"] is None
+    # Overlapping identical episodes are kept once; a conflicting one is refused.
+    assert merge_datasets([reference, a], tmp_path / "dup.h5")["duplicates"] == 2
+    bad = tmp_path / "bad.h5"
+    shutil.copy(a, bad)
+    with h5py.File(bad, "r+") as f:
+        f["episodes/000000/truth/times"][0] += 1.0
+    with pytest.raises(InputError, match="episode 0 differs"):
+        merge_datasets([reference, bad], tmp_path / "x.h5")
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_merge_refuses_shards_of_another_config(reference, tmp_path):
+    other = tmp_path / "other.h5"
+    make_dataset(TASK, other, episodes=1, features="srp:4x8", progress=False)
+    with pytest.raises(InputError, match="not a shard of the same dataset.*features"):
+        merge_datasets([reference, other], tmp_path / "m.h5")
+
+
+def _cli(task_dir: Path, out: Path) -> tuple[list[str], dict]:
+    cmd = [sys.executable, "-m", "doabench.cli.main", "make-dataset", "--task", TASK, "--features", FEATURES,
+           "--out", str(out), "--quiet"]
+    env = dict(os.environ, DOABENCH_TASK_PATH=str(task_dir), PYTHONPATH=str(ROOT))
+    return cmd, env
+
+
+def test_sigkill_mid_run_then_resume_equals_an_uninterrupted_run(reference, task_dir, tmp_path):
+    out = tmp_path / "killed.h5"
+    cmd, env = _cli(task_dir, out)
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    folder = parts_dir(out)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:
+        if folder.is_dir() and any(p.name.endswith(".h5") for p in folder.iterdir()):
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, f"make-dataset ended before it could be killed: {proc.communicate()}"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not out.exists()  # nothing half-written under the final name
+    done = [p for p in folder.iterdir() if p.name.endswith(".h5")]
+    assert 1 <= len(done) < 4
+    # Debris of a crash at other moments: a stray tmp part, a stale assembly, a corrupt part.
+    (folder / ".000003.999.tmp").write_bytes(b"half")
+    partial_path(out).write_bytes(b"not hdf5")
+    missing = sorted({f"{i:06d}.h5" for i in range(4)} - {p.name for p in done})
+    (folder / missing[0]).write_bytes(b"\x89HDF\r\n\x1a\n garbage")
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert f"{len(done)} from an earlier run" in res.stdout
+    assert out.exists() and not folder.exists() and not partial_path(out).exists()
+    assert_same_episodes(reference, out)
+    # The same command once more has nothing to do.
+    assert make_dataset(TASK, out, features=FEATURES, progress=False).already_complete
+
+
+def test_resume_with_another_config_is_refused(reference, tmp_path):
+    out = tmp_path / "r.h5"
+
+    def crash(index):  # dies after its first episode, leaving the journal behind
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        make_dataset(TASK, out, features="srp:4x8", progress=crash)
+    assert not out.exists() and len(list(parts_dir(out).glob("*.h5"))) == 1
+    assert main(["dataset", "info", str(out)]) == 0  # reports the unfinished run
+    with pytest.raises(ConfigError, match="unfinished run with another config.*features"):
+        make_dataset(TASK, out, features="srp:8x16", progress=False)
+    make_dataset(TASK, out, features="srp:4x8", progress=False)
+    with pytest.raises(InputError, match="exists and was made with another config"):
+        make_dataset(TASK, out, features="gcc", progress=False)
+    with pytest.raises(ConfigError, match="out of range"):
+        make_dataset(TASK, tmp_path / "y.h5", episodes=9, progress=False)
+
+
+def test_corrupt_and_foreign_files_are_clear_errors(reference, tmp_path):
+    cases = {}
+    cases["text.h5"] = b"hello, not hdf5"
+    cases["truncated.h5"] = reference.read_bytes()[: reference.stat().st_size // 3]
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+    with h5py.File(tmp_path / "foreign.h5", "w") as f:
+        f["x"] = 1
+    with h5py.File(tmp_path / "v9.h5", "w") as f:
+        f.attrs["doabench_schema"] = "doabench.dataset/9"
+        f.create_group("episodes")
+    expected = {"text.h5": "not an HDF5 file", "truncated.h5": "truncated or corrupt",
+                "foreign.h5": "not a doabench dataset", "v9.h5": "schema doabench.dataset/9"}
+    for name, message in expected.items():
+        with pytest.raises(InputError, match=message) as exc:
+            DatasetFile(tmp_path / name)
+        assert name in str(exc.value)
+    with pytest.raises(NotFoundError, match="does not exist"):
+        DatasetFile(tmp_path / "missing.h5")
+    assert main(["dataset", "info", str(tmp_path / "text.h5")]) == 2
+
+
+def test_incomplete_groups_are_not_episodes(reference, tmp_path):
+    copy = tmp_path / "c.h5"
+    shutil.copy(reference, copy)
+    with h5py.File(copy, "r+") as f:
+        f["episodes/000001"].attrs["complete"] = False
+    with DatasetFile(copy) as f:
+        assert f.indices == [0, 2, 3]
+        info = f.info()
+    assert info["episodes_missing"] == [1] and info["incomplete_groups"] == 1
+
+
+def test_episode_dataset_items_and_loader(reference):
+    ds = EpisodeDataset(reference, features=("srp:8x16", "srp_max:8x16", "gcc"))
+    assert len(ds) == 4
+    item = ds[2]
+    t = item["directions"].shape[0]
+    assert item["index"] == 2 and item["features"]["srp:8x16"].shape == (t, 8, 16)
+    assert item["features"]["gcc"].dtype == torch.float32 and item["vad"].dtype == torch.bool
+    assert item["directions"].shape == (t, 3) and item["times"].shape == (t,)
+    loader = torch.utils.data.DataLoader(ds, batch_size=2, num_workers=1)
+    batch = next(iter(loader))
+    assert batch["features"]["srp:8x16"].shape == (2, t, 8, 16) and batch["index"].tolist() == [0, 1]
+    with pytest.raises(NotFoundError, match="does not store feature 'srp:16x32'"):
+        EpisodeDataset(reference, features=("srp:16x32",))
+    with pytest.raises(NotFoundError, match="does not store"):
+        EpisodeDataset(reference, features=("srp",))  # two resolutions stored: ambiguous
+
+
+def test_float16_maps(tmp_path):
+    out = tmp_path / "h.h5"
+    make_dataset(TASK, out, episodes=1, features="srp:4x8,gcc", float16=True, compression="lzf", progress=False)
+    with h5py.File(out, "r") as f:
+        g = f["episodes/000000"]
+        assert g["features/srp_4x8"].dtype == np.float16 and g["features/gcc"].dtype == np.float16
+        assert g["features/srp_max_4x8"].dtype == np.float32 and g["features/gcc"].compression == "lzf"
+    item = EpisodeDataset(out, features="srp")[0]
+    assert item["features"]["srp"].dtype == torch.float32
+
+
+def test_replay_a_dataset_file_as_a_task(reference, tmp_path):
+    task = f"file:{reference}"
+    spec = doabench.get_task_spec(task)
+    assert spec.kind == "dataset" and spec.episodes == 4 and spec.version == 2
+    # Stored features are served as they are (no simulation).
+    env = DoaEnv(task, features=("srp", "srp_max"), resolution=(8, 16))
+    obs, info = env.reset(options={"episode": 3})
+    assert type(env._episode).__name__ == "StoredEpisode" and env._episode.n_samples == 16000
+    with DatasetFile(reference) as f:
+        np.testing.assert_array_equal(obs["srp"], f.read(3, ["srp:8x16"])["srp:8x16"][0])
+    assert info["metadata"]["episode_index"] == 3
+    # A resolution that is not stored is computed from the stored audio, like the live task does.
+    live = DoaEnv(TASK, features=("srp",), resolution=(2, 4))
+    env2 = DoaEnv(task, features=("srp",), resolution=(2, 4))
+    _, f1, t1 = live.load_episode(0)
+    _, f2, t2 = env2.load_episode(0)
+    np.testing.assert_array_equal(f1["srp"], f2["srp"])
+    np.testing.assert_allclose(t1["directions"], t2["directions"], atol=1e-6)
+    results = doabench.run(tracker="srp-max:8x16", task=task, progress=False, keep_frames=False)
+    assert results["summary"]["pooled"]["n_episodes"] == 4
+    # Without audio, asking for features the file does not store is a clear error.
+    small = tmp_path / "noaudio.h5"
+    make_dataset(TASK, small, episodes=1, features="srp:4x8", progress=False)
+    with pytest.raises(InputError, match="stores srp:4x8, srp_max:4x8 but the environment asks"):
+        DoaEnv(f"file:{small}", features=("srp",), resolution=(8, 16)).reset(options={"episode": 0})
+    with pytest.raises(InputError, match="not an HDF5 file"):
+        (tmp_path / "junk.h5").write_text("junk")
+        doabench.get_task_spec(f"file:{tmp_path / 'junk.h5'}")
+
+
+def test_cli_make_dataset_and_info(task_dir, tmp_path, capsys):
+    out = tmp_path / "cli.h5"
+    assert main(["make-dataset", "--task", TASK, "--episodes", "2", "--shard", "2/2", "--features", "srp:4x8",
+                 "--sample-vad", "--out", str(out), "--quiet"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert main(["dataset", "info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "1 complete / 1 requested" in text and "features/srp_4x8" in text and "sample_vad" in text
+    assert main(["dataset", "info", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["index_range"] == [1, 1]
+    assert main(["make-dataset", "--task", TASK, "--features", "mfcc", "--out", str(tmp_path / "e.h5")]) == 2
+    assert "unknown dataset feature" in capsys.readouterr().err
