@@ -59,14 +59,15 @@ def make_generator(seed: int | torch.Generator | None, device: torch.device) -> 
 def accumulate_(buffer: torch.Tensor, index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
     """``buffer.view(-1)[index] += values`` summing duplicates, deterministically.
 
-    CPU ``index_add_`` adds in index order; on CUDA ``index_add_`` uses atomics (order varies),
+    On CPU a 1-D ``scatter_add_`` runs serially in index order (and is the fastest of the
+    accumulating ops there); on CUDA ``scatter_add_``/``index_add_`` use atomics (order varies)
     while ``index_put_(accumulate=True)`` sorts first, which keeps same-seed runs bitwise equal.
     """
     flat = buffer.view(-1)
     if flat.is_cuda:
         flat.index_put_((index,), values, accumulate=True)
     else:
-        flat.index_add_(0, index, values)
+        flat.scatter_add_(0, index, values)
     return buffer
 
 
@@ -78,16 +79,16 @@ def windowed_sinc(t: np.ndarray, half: int = SINC_HALF) -> np.ndarray:
     return np.where(np.abs(t) < width, np.sinc(t) * w, 0.0)
 
 
-def _polyphase_kernel(half: int, over: int, block: int) -> np.ndarray:
-    """Weights ``(block, over, block + 2 half + 1)`` of the strided convolution.
+def _interleaved_kernel(half: int, over: int, block: int) -> np.ndarray:
+    """Weights ``(block, 1, (block + 2 half + 1) over)`` of the strided convolution.
 
-    Input row ``r``, column ``j`` (after ``half + 1`` samples of left padding) holds the impulses
-    at time ``j - half - 1 + r / over``; output ``s`` of a block is sample ``s`` of that block.
+    The input is the fine grid (``over`` columns per sample) after ``(half + 1) over`` columns of
+    left padding, so column ``t`` of a block's window holds impulses at time
+    ``t / over - half - 1`` relative to the block start; output ``s`` is sample ``s`` of the block.
     """
     s = np.arange(block)[:, None, None]
-    r = np.arange(over)[None, :, None]
-    j = np.arange(block + 2 * half + 1)[None, None, :]
-    return windowed_sinc(s + half + 1 - j - r / over, half)
+    t = np.arange((block + 2 * half + 1) * over)[None, None, :]
+    return windowed_sinc(s + half + 1 - t / over, half)
 
 
 _KERNELS: dict[tuple, torch.Tensor] = {}
@@ -96,7 +97,7 @@ _KERNELS: dict[tuple, torch.Tensor] = {}
 def _kernel(device: torch.device) -> torch.Tensor:
     key = (str(device), SINC_HALF, OVERSAMPLE, _BLOCK)
     if key not in _KERNELS:
-        k = _polyphase_kernel(SINC_HALF, OVERSAMPLE, _BLOCK)
+        k = _interleaved_kernel(SINC_HALF, OVERSAMPLE, _BLOCK)
         _KERNELS[key] = torch.as_tensor(k, dtype=torch.float32, device=device)
     return _KERNELS[key]
 
@@ -216,48 +217,57 @@ def render_images(
     if P == 0 or n_out == 0:
         return torch.zeros(P, M, n_out, device=device)
     half, over, block = SINC_HALF, OVERSAMPLE, _BLOCK
-    n_blocks = -(-n_out // block)
-    n_buf = n_blocks * block + half + 1  # polyphase buffer columns (see _polyphase_kernel)
-    horizon = float(n_out + half)  # samples: later images only touch samples >= n_out
     to_samples = fs / SPEED_OF_SOUND
-
     f32 = dict(dtype=torch.float32, device=device)
-    sign = torch.as_tensor(images.sign, **f32)
-    offset = torch.as_tensor(images.offset, **f32)
-    gain = torch.as_tensor(images.gain / (4.0 * math.pi), **f32)
+
+    # Coordinates relative to the array centre keep |p|^2 - 2 p.m + |m|^2 free of cancellation.
+    centre = mics.to(torch.float64).mean(0)
+    mic = (mics.to(torch.float64) - centre).to(torch.float32)
     src = sources.to(torch.float32)
-    mic = mics.to(torch.float32)
+    sign = torch.as_tensor(images.sign, **f32)
+    offset = torch.as_tensor(images.offset - centre.cpu().numpy(), **f32)
+    gain = torch.as_tensor(images.gain / (4.0 * math.pi), **f32)
 
-    # Keep (point, image) pairs within reach of the array's bounding sphere: cheap (P, I) work
-    # that spares the (P, I, M) work for the images only far microphones could hear.
-    centre = mic.mean(0)
-    radius = float((mic - centre).norm(dim=1).max()) + horizon / to_samples
-    d_centre = torch.zeros(P, len(images), **f32)
-    for a in range(3):
-        d_centre += (offset[None, :, a] + sign[None, :, a] * src[:, None, a] - centre[a]) ** 2
-    p_idx, i_idx = (d_centre <= radius * radius).nonzero(as_tuple=True)
-    del d_centre
-    pos = offset[i_idx] + sign[i_idx] * src[p_idx]  # (K, 3)
+    # Keep (point, image) pairs whose image is within reach of the array's bounding sphere
+    # (cheap (P, I) work that spares the (M, K) work below). Images up to 2 array radii beyond
+    # the horizon for some mic are kept and land in spare buffer columns: cheaper than masking.
+    arr_radius = float(mic.norm(dim=1).max())
+    reach = (n_out + half) / to_samples + arr_radius
+    rel = [torch.addcmul(offset[None, :, a], sign[None, :, a], src[:, a, None]) for a in range(3)]
+    r2 = rel[0] * rel[0]
+    r2.addcmul_(rel[1], rel[1]).addcmul_(rel[2], rel[2])
+    flat = (r2.view(-1) <= reach * reach).nonzero().squeeze(1)  # (K,) into the (P, I) grid
+    pos = torch.stack([r.view(-1)[flat] for r in rel])  # (3, K) image positions
+    pos_sq = r2.view(-1)[flat]
+    p_idx = flat // len(images)
+    amp = gain[flat - p_idx * len(images)]
+    del rel, r2, flat
 
-    # (M, K) layout: consecutive writes go to one (point, mic) row, which stays in cache.
-    dist = torch.cdist(mic, pos)  # (M, K)
-    amp = gain[i_idx][None] / dist.clamp_min(1e-6)
-    t = dist * (to_samples * over)  # arrival in 1/over samples
-    q = torch.floor(t)
-    frac = t - q
-    q = q.to(torch.int64)
-    valid = t < horizon * over
-    q = torch.where(valid, q, torch.zeros_like(q))
-    amp = torch.where(valid, amp, torch.zeros_like(amp))
-    row = p_idx[None] * M + torch.arange(M, device=device)[:, None]  # (M, K) output row
-    base = row * (over * n_buf)
-    buf = torch.zeros(P * M, over, n_buf, **f32)
-    for qq, w in ((q, amp * (1.0 - frac)), (q + 1, amp * frac)):
-        accumulate_(buf, (base + (qq % over) * n_buf + qq // over).reshape(-1), w.reshape(-1))
-    del dist, amp, t, q, frac, valid, row, base
+    # Distances (M, K), in that layout so that consecutive writes stay in one output row.
+    dist = torch.addmm((mic * mic).sum(1, keepdim=True), mic, pos, alpha=-2.0)
+    dist.add_(pos_sq).clamp_(min=1e-12).sqrt_()
+    amp = amp / dist
+    t = dist.mul_(to_samples * over)  # arrival on the fine grid, >= 0
+    index = t.to(torch.int64)  # floor
+    frac = t.sub_(index)
+    w1 = amp * frac
+    w0 = amp.sub_(w1)
 
-    buf = F.pad(buf, (half + 1, 0))
-    out = F.conv1d(buf, _kernel(device), stride=block)  # (P*M, block, n_blocks)
+    # Fine-grid buffer per (point, mic) row: (half + 1) * over columns of left padding for the
+    # convolution, then the grid; n_blocks is rounded up to cover the spare columns.
+    spare = int(math.ceil(2 * arr_radius * to_samples)) + 2
+    n_blocks = -(-(n_out + spare) // block)
+    width = (n_blocks * block + 2 * half + 1) * over
+    lead = (half + 1) * over
+    index += (p_idx * (M * width) + lead)[None]
+    index += (torch.arange(M, device=device) * width)[:, None]
+    index = index.view(-1)
+    buf = torch.zeros(P * M * width + 1, **f32)  # +1: the w1 write of the last column
+    accumulate_(buf[:-1], index, w0.view(-1))
+    accumulate_(buf[1:], index, w1.view(-1))
+    del dist, amp, frac, w0, w1, index
+
+    out = F.conv1d(buf[:-1].view(P * M, 1, width), _kernel(device), stride=block * over)
     return out.transpose(1, 2).reshape(P, M, n_blocks * block)[..., :n_out]
 
 
@@ -300,25 +310,29 @@ def add_diffuse_tail(
     layout: RirLayout,
     delays: torch.Tensor,
     generator: torch.Generator,
+    out: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Full RIRs ``(P, M, n_taps)`` float32: ``early`` ``(P, M, n_early)`` plus independent
     exponentially decaying Gaussian noise on ``[n_diff, n_taps)`` for every (point, mic) pair.
 
     Draws ``P * M * (n_taps - n_diff)`` normals from ``generator`` (on ``early``'s device).
+    Writes into ``out`` when given (saves a copy).
     """
     P, M, _ = early.shape
-    out = torch.zeros(P, M, layout.n_taps, dtype=torch.float32, device=early.device)
+    if out is None:
+        out = torch.empty(P, M, layout.n_taps, dtype=torch.float32, device=early.device)
     out[..., : layout.n_early] = early[..., : layout.n_early]
+    out[..., layout.n_early :] = 0.0
     if room.t60 == 0 or layout.n_taps <= layout.n_diff:
         return out
     level = tail_level(early, room, fs, layout, delays)  # (P, M)
     n = torch.arange(layout.n_diff, layout.n_taps, device=early.device, dtype=torch.float64)
-    env = torch.exp(-0.5 * decay_rate(room.t60) * n / fs)  # amplitude envelope
-    scale = (level.sqrt()[..., None] * env).to(torch.float32)
+    env = torch.exp(-0.5 * decay_rate(room.t60) * n / fs).to(torch.float32)  # amplitude
     noise = torch.randn(
         P, M, layout.n_taps - layout.n_diff, generator=generator, device=early.device, dtype=torch.float32
     )
-    out[..., layout.n_diff :] += noise * scale
+    noise.mul_(env).mul_(level.sqrt().to(torch.float32)[..., None])
+    out[..., layout.n_diff :] += noise
     return out
 
 
@@ -333,7 +347,7 @@ def _points_per_chunk(room: Room | None, n_mics: int, n_images: int, layout: Rir
     per_point = max(
         n_images,  # (P, I) pruning distances
         n_mics * heard,  # (M, K) per-image work
-        n_mics * OVERSAMPLE * (layout.n_early + SINC_HALF + 2 * _BLOCK),  # polyphase buffer
+        n_mics * OVERSAMPLE * (layout.n_early + 2 * SINC_HALF + 2 * _BLOCK + 8),  # fine-grid buffer
         n_mics * layout.n_taps,  # output
     )
     return max(1, int(_CHUNK_ELEMENTS // per_point))
@@ -362,7 +376,7 @@ def image_source_rirs(
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
         early = render_images(images, sources[p0:p1], mics, fs, layout.n_early)
-        out[p0:p1] = add_diffuse_tail(early, room, fs, layout, delays[p0:p1], generator)
+        add_diffuse_tail(early, room, fs, layout, delays[p0:p1], generator, out=out[p0:p1])
     return out
 
 

@@ -114,33 +114,42 @@ def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor) -> torch.Tenso
     ``rirs`` ``(S, M, N)``, ``signal`` ``(L,)``. Segment ``i`` of the signal (:func:`segment_bounds`)
     is FFT-convolved with ``rirs[i]`` and added at its start sample; the output keeps the first
     ``L`` samples. Batched over points and mics, chunked over points to bound memory.
+
+    Segment ``i`` starts at ``b[i] = i * hop + shift[i]`` with ``hop = L // S`` and
+    ``0 <= shift[i] < S``; placing it ``shift[i]`` samples into its FFT frame puts every frame on
+    the uniform ``hop`` grid, so the overlap-add is a few dense block additions (no index
+    tensors, deterministic on every device).
     """
     S, M, N = rirs.shape
     L = signal.shape[-1]
     device = rirs.device
     signal = signal.to(device=device, dtype=torch.float32)
     bounds = segment_bounds(L, S)
-    seg = int(np.diff(bounds).max())
-    nfft = next_fast_len(seg + N - 1, real=True)
-    starts = torch.as_tensor(bounds[:-1], device=device)
-    idx = starts[:, None] + torch.arange(seg, device=device)[None]  # (S, seg)
-    segments = torch.where(
-        idx < torch.as_tensor(bounds[1:], device=device)[:, None],
-        signal[idx.clamp(max=L - 1)],
-        torch.zeros((), device=device),
-    )
-    n_out = int(bounds[-2]) + nfft
-    out = torch.zeros(M, n_out, dtype=torch.float32, device=device)
+    hop = L // S
+    if hop == 0:  # more points than samples: only the points that own a sample matter
+        keep = np.flatnonzero(np.diff(bounds) > 0)
+        return convolve_trajectory(rirs[torch.as_tensor(keep, device=device)], signal)
+    shift = bounds[:-1] - np.arange(S) * hop
+    frame = int((shift + np.diff(bounds)).max())  # frame samples holding signal
+    nfft = next_fast_len(frame + N - 1, real=True)
+    col = torch.arange(frame, device=device)[None] - torch.as_tensor(shift, device=device)[:, None]
+    seg_len = torch.as_tensor(np.diff(bounds), device=device)[:, None]
+    src_idx = torch.as_tensor(bounds[:-1], device=device)[:, None] + col
+    frames = torch.where(
+        (col >= 0) & (col < seg_len), signal[src_idx.clamp(0, L - 1)], torch.zeros((), device=device)
+    )  # (S, frame): segment i at offset shift[i]
+    n_hops = -(-nfft // hop)  # output hops one frame touches
+    out = torch.zeros(M, S + n_hops, hop, dtype=torch.float32, device=device)
     step = max(1, _OLA_CHUNK_ELEMENTS // (M * nfft))
-    cols = torch.arange(nfft, device=device)
-    rows = torch.arange(M, device=device)[:, None, None] * n_out
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
-        spec = torch.fft.rfft(rirs[p0:p1].to(torch.float32), nfft) * torch.fft.rfft(segments[p0:p1], nfft)[:, None]
-        y = torch.fft.irfft(spec, nfft).transpose(0, 1)  # (M, P, nfft): one row's writes adjoin
-        index = rows + (starts[p0:p1, None] + cols)[None]
-        engine.accumulate_(out, index.reshape(-1), y.reshape(-1))
-    return out[:, :L]
+        spec = torch.fft.rfft(rirs[p0:p1].to(torch.float32), nfft)
+        spec *= torch.fft.rfft(frames[p0:p1], nfft)[:, None]
+        y = torch.fft.irfft(spec, nfft).transpose(0, 1)  # (M, P, nfft) view
+        for k in range(n_hops):  # a handful of block adds, each over all points and mics
+            a, b = k * hop, min((k + 1) * hop, nfft)
+            out[:, p0 + k : p1 + k, : b - a] += y[..., a:b]
+    return out.view(M, -1)[:, :L]
 
 
 def direct_path(
