@@ -65,7 +65,8 @@ def wav_declared_frames(path: Path) -> int | None:
                     fmt = f.read(size + (size & 1))
                     block_align = struct.unpack("<H", fmt[12:14])[0]
                 elif cid == b"data":
-                    return None if not block_align else size // block_align
+                    # 0 and 0xFFFFFFFF mark "unknown length" (streamed or RF64 files): no check then.
+                    return None if not block_align or size in (0, 0xFFFFFFFF) else size // block_align
                 else:
                     f.seek(size + (size & 1), 1)
     except (OSError, struct.error):
