@@ -14,6 +14,7 @@ Non-causal trackers use the separate offline path :meth:`DoaEnv.offline_episode`
 """
 from __future__ import annotations
 
+import copy
 from collections import OrderedDict
 from typing import Any, Sequence
 
@@ -76,9 +77,11 @@ class DoaEnv(gymnasium.Env):
         m, n_pairs = self.array.n_mics, len(self.array.pairs)
         lags = 2 * self.array.max_lag(self.frame_spec.fs) + 1
         boxes = {
-            "srp": spaces.Box(-np.inf, np.inf, self.resolution, np.float32),
+            # mean removed and divided by the maximum: the maximum is 1, the minimum has no bound
+            "srp": spaces.Box(-np.inf, 1.0, self.resolution, np.float32),
             "srp_max": spaces.Box(0.0, 1.0, (2,), np.float32),
-            "gcc": spaces.Box(-np.inf, np.inf, (n_pairs, lags), np.float32),
+            # PHAT-weighted: a mean of unit phasors, so |R| <= 1
+            "gcc": spaces.Box(-1.0, 1.0, (n_pairs, lags), np.float32),
             "spectrogram": spaces.Box(-1.0, 1.0, (2 * m, self.frame_spec.window // 2), np.float32),
         }
         space = {k: boxes[k] for k in self.features}
@@ -139,7 +142,7 @@ class DoaEnv(gymnasium.Env):
         if t >= self._n_frames:
             return {k: np.zeros(s.shape, s.dtype) if isinstance(s, spaces.Box) else 0
                     for k, s in self.observation_space.spaces.items()}
-        obs = {k: self._feats[k][t] for k in self.features}
+        obs = {k: self._feats[k][t].copy() for k in self.features}  # users may keep or modify it
         obs["vad"] = int(self._feats["vad"][t])
         return obs
 
@@ -155,8 +158,8 @@ class DoaEnv(gymnasium.Env):
         self._episode_index = index
         self._n_frames = len(self._truth["directions"])
         self._t = 0
-        info = {"episode": index, "n_frames": self._n_frames, "frame_times": self._truth["times"],
-                "metadata": self._episode.metadata}
+        info = {"episode": index, "n_frames": self._n_frames, "frame_times": self._truth["times"].copy(),
+                "metadata": copy.deepcopy(self._episode.metadata)}
         return self._observation(0), info
 
     def step(self, action):
@@ -169,7 +172,7 @@ class DoaEnv(gymnasium.Env):
             raise InputError(f"action must be a finite direction vector of shape (3,), got {a.shape} {a!r}")
         truth = self._truth["directions"][self._t]
         error = float(great_circle_error(a, truth))
-        info = {"frame": self._t, "truth": truth, "vad": bool(self._truth["vad"][self._t]),
+        info = {"frame": self._t, "truth": truth.copy(), "vad": bool(self._truth["vad"][self._t]),
                 "error_rad": error, "time_s": float(self._truth["times"][self._t])}
         self._t += 1
         terminated = self._t >= self._n_frames
