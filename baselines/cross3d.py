@@ -27,11 +27,10 @@ import math
 from functools import partial
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from doabench.errors import ConfigError
-from .layers import CausalConv, StreamingMixin, number_causal_convs, sphere_pad
+from .layers import CausalConv, StreamingMixin, max_pool2, number_causal_convs, sphere_pad
 
 CHANNELS = 32
 HIDDEN = 128
@@ -90,10 +89,10 @@ class Cross3D(StreamingMixin, nn.Module):
         h = self.act_input(self.input(x, state))  # (B, 32, T, n_theta, n_phi)
         a = h
         for conv, act in zip(self.branch_phi, self.act_phi):
-            a = F.max_pool3d(act(conv(a, state)), (1, 1, 2))
+            a = max_pool2(act(conv(a, state)), -1)  # azimuth
         e = h
         for conv, act in zip(self.branch_theta, self.act_theta):
-            e = F.max_pool3d(act(conv(e, state)), (1, 2, 1))
+            e = max_pool2(act(conv(e, state)), -2)  # elevation
         batch, frames = x.shape[0], x.shape[2]
         # (B, C, T, H, W) -> (B, C*H*W, T): each (channel, map cell) becomes one input sequence.
         seq = torch.cat([

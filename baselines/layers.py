@@ -27,19 +27,30 @@ def sphere_pad(x: torch.Tensor, pad_theta: int, pad_phi: int) -> torch.Tensor:
     """Pad the two map axes of ``(..., n_theta, n_phi)``: reflecting in elevation, circular in azimuth.
 
     The azimuth grid covers ``[-pi, pi)`` exactly, so its ends are neighbours (circular); elevation
-    stops at the poles, where reflection keeps the padded rows plausible map values.
+    stops at the poles, where reflection (edge row not repeated) keeps the padded rows plausible
+    map values. Needs ``pad_theta < n_theta`` and ``pad_phi <= n_phi``.
     Returns ``(..., n_theta + 2 pad_theta, n_phi + 2 pad_phi)``.
     """
-    n_theta, n_phi = x.shape[-2], x.shape[-1]
+    shape = x.shape
+    # torch's reflect/circular modes want (N, C, H, W); fold every leading axis into N (a view).
+    x = x.reshape(-1, 1, shape[-2], shape[-1])
     if pad_theta:
-        # Reflect without repeating the edge row (numpy/torch "reflect"): -k -> k, n-1+k -> n-1-k.
-        idx = torch.arange(-pad_theta, n_theta + pad_theta, device=x.device).abs()
-        idx = torch.where(idx > n_theta - 1, 2 * (n_theta - 1) - idx, idx)
-        x = x.index_select(-2, idx)
+        x = F.pad(x, (0, 0, pad_theta, pad_theta), mode="reflect")
     if pad_phi:
-        idx = torch.arange(-pad_phi, n_phi + pad_phi, device=x.device) % n_phi
-        x = x.index_select(-1, idx)
-    return x
+        x = F.pad(x, (pad_phi, pad_phi, 0, 0), mode="circular")
+    return x.reshape(*shape[:-2], x.shape[-2], x.shape[-1])
+
+
+def max_pool2(x: torch.Tensor, dim: int) -> torch.Tensor:
+    """Max-pooling by 2 (stride 2, odd remainder dropped) along one axis.
+
+    The same as ``max_pool3d`` with a ``1x1x2`` / ``1x2x1`` kernel, several times faster on CPU
+    because it needs no index bookkeeping: the max of the even and the odd slices.
+    """
+    dim = dim % x.dim()
+    n = x.shape[dim] // 2 * 2
+    lead = (slice(None),) * dim
+    return torch.maximum(x[lead + (slice(0, n, 2),)], x[lead + (slice(1, n, 2),)])
 
 
 def zero_pad_last(x: torch.Tensor, pad: int) -> torch.Tensor:
@@ -79,7 +90,29 @@ class CausalConv(nn.Module):
                 x = torch.cat([cached, x], dim=2)
                 # Cache padded frames so the spatial padding is done once per frame.
                 state[self.slot] = x[:, :, -self.context:].contiguous()
+                if x.shape[2] == self.context + 1:
+                    return self._one_frame(x)
         return self.conv(x)
+
+    def _one_frame(self, window: torch.Tensor) -> torch.Tensor:
+        """The single output frame of a ``(batch, C, context + 1, *space)`` window.
+
+        A temporal kernel that spans the whole window is the same as folding time into the
+        channels: a Conv3d becomes a Conv2d, a Conv2d a Conv1d, a Conv1d a matrix product. The
+        lower-dimensional kernels are several times faster than the general ones on one frame.
+        """
+        taps = window[:, :, :: self.dilation] if self.dilation > 1 else window  # (B, C, k, *S)
+        b = taps.shape[0]
+        weight = self.conv.weight  # (C_out, C_in, k, *kernel_space), contiguous: reshapes are views
+        folded = taps.reshape(b, -1, *taps.shape[3:])
+        w = weight.reshape(weight.shape[0], -1, *weight.shape[3:])
+        if window.dim() == 3:
+            y = F.linear(folded, w, self.conv.bias)
+        elif window.dim() == 4:
+            y = F.conv1d(folded, w, self.conv.bias)
+        else:
+            y = F.conv2d(folded, w, self.conv.bias)
+        return y.unsqueeze(2)
 
 
 def number_causal_convs(model: nn.Module) -> int:

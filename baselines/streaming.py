@@ -1,0 +1,43 @@
+"""Frame-by-frame inference for the causal models.
+
+:class:`StreamingRunner` holds a model's streaming state (per causal convolution, the last
+``(kernel - 1) * dilation`` input frames of that layer) so each new frame costs the same whatever
+the episode length, and the outputs equal the full-sequence pass (tests/test_streaming.py)::
+
+    runner = StreamingRunner(Cross3D(16, 32))
+    for frame in frames:               # (batch, 3, 16, 32) each
+        y = runner.step(frame)         # (batch, 3)
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class StreamingRunner:
+    """Cached causal inference for a model with ``init_state`` and ``stream_step`` (see layers.py).
+
+    Runs in ``torch.inference_mode`` with the model in eval mode. ``reset()`` starts a new stream.
+    """
+
+    def __init__(self, model: nn.Module) -> None:
+        if not hasattr(model, "stream_step"):
+            raise TypeError(f"{type(model).__name__} has no streaming mode (it is not causal)")
+        self.model = model.eval()
+        self.frames = 0
+        self.state = model.init_state()
+
+    def reset(self) -> None:
+        self.state = self.model.init_state()
+        self.frames = 0
+
+    def step(self, x_t: torch.Tensor) -> torch.Tensor:
+        """One frame ``(batch, *frame_shape)`` -> ``(batch, 3)``."""
+        with torch.inference_mode():
+            y, self.state = self.model.stream_step(x_t, self.state)
+        self.frames += 1
+        return y
+
+    def cached_frames(self) -> int:
+        """Frames held in the caches, over all layers (constant once the stream has started)."""
+        return sum(0 if s is None else int(s.shape[2]) for s in self.state)
