@@ -52,3 +52,13 @@ def test_track_input_errors_are_one_line(scene_dir, tmp_path, capsys):
         assert not out.exists()
     # with --resample the 8 kHz file is accepted
     assert main(["track", str(tmp_path / "fs8k.wav"), "--resample", "--out", str(tmp_path / "ok.csv")]) == 0
+
+
+@pytest.mark.parametrize("tracker", ["music", "normmusic", "srp-pra"])
+def test_pyroomacoustics_trackers_follow_the_truth(scene_dir, tmp_path, tracker):
+    csv = tmp_path / "doa.csv"
+    assert main(["track", str(scene_dir / "audio.wav"), "--tracker", tracker, "--out", str(csv)]) == 0
+    est, truth = pd.read_csv(csv), pd.read_csv(scene_dir / "truth.csv")
+    cos = np.sum(est[["x", "y", "z"]].to_numpy() * truth[["x", "y", "z"]].to_numpy(), 1)
+    errors = np.degrees(np.arccos(np.clip(cos, -1, 1)))[truth.vad.to_numpy(bool)]
+    assert np.median(errors) < 15, (tracker, np.median(errors))

@@ -38,20 +38,15 @@ def recording_vad(audio: np.ndarray, fs: int) -> np.ndarray:
 def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | None, delays: str = "nearest",
                     device: str | None = None) -> dict[str, np.ndarray]:
     """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording."""
-    import torch
-
     from doabench.features import FeatureExtractor
+    from doabench.features.observations import extractor_kinds, recording_features
     from doabench.runner import check_direction, check_directions
 
     spec = tracker.frame_spec
-    extractor = FeatureExtractor(array, kinds=tuple(tracker.features), resolution=tracker.resolution or (16, 32),
+    extractor = FeatureExtractor(array, kinds=extractor_kinds(tracker.features), resolution=tracker.resolution or (16, 32),
                                  mode=delays, frame_spec=spec, spectrogram_frame_spec=spec)
-    x = torch.as_tensor(audio, dtype=torch.float32, device=device)[None]
-    vad = None if sample_vad is None else torch.as_tensor(sample_vad, device=device)[None]
-    with torch.inference_mode():
-        feats = {k: v[0].cpu().numpy() for k, v in extractor(x, vad).items()}
+    feats = recording_features(extractor, audio, sample_vad, tracker.features, spec, device)
     n = len(feats["vad"])
-    feats["vad"] = feats["vad"].astype(np.int64)
     tracker.reset(array, frame_spec=spec)
     if tracker.causal:
         directions = np.stack([check_direction(tracker, tracker.step({**{k: v[t] for k, v in feats.items()},

@@ -31,7 +31,7 @@ from doabench.errors import ConfigError, InputError
 from doabench.framing import FrameSpec
 from doabench.geometry import great_circle_error, parse_resolution
 
-FEATURE_KINDS = ("srp", "srp_max", "gcc", "spectrogram")
+FEATURE_KINDS = ("srp", "srp_max", "gcc", "spectrogram", "audio")
 
 
 class DoaEnv(gymnasium.Env):
@@ -83,6 +83,7 @@ class DoaEnv(gymnasium.Env):
             # PHAT-weighted: a mean of unit phasors, so |R| <= 1
             "gcc": spaces.Box(-1.0, 1.0, (n_pairs, lags), np.float32),
             "spectrogram": spaces.Box(-1.0, 1.0, (2 * m, self.frame_spec.window // 2), np.float32),
+            "audio": spaces.Box(-np.inf, np.inf, (m, self.frame_spec.window), np.float32),
         }
         space = {k: boxes[k] for k in self.features}
         space["vad"] = spaces.Discrete(2)
@@ -95,11 +96,11 @@ class DoaEnv(gymnasium.Env):
 
     def _extractor(self, array: MicArray):
         from doabench.features import FeatureExtractor
+        from doabench.features.observations import extractor_kinds
 
         key = array.positions.tobytes()
         if key not in self._extractors:
-            kinds = tuple(self.features) if self.features else ("srp",)
-            self._extractors[key] = FeatureExtractor(array, kinds=kinds, resolution=self.resolution,
+            self._extractors[key] = FeatureExtractor(array, kinds=extractor_kinds(self.features), resolution=self.resolution,
                                                      mode=self.delays, frame_spec=self.frame_spec)
         return self._extractors[key]
 
@@ -120,12 +121,10 @@ class DoaEnv(gymnasium.Env):
             if episode.n_mics != array.n_mics:
                 raise InputError(f"episode {index} of {self.spec_task.id!r} has {episode.n_mics} channels but "
                                  f"array {array.name!r} has {array.n_mics} microphones")
-            import torch
+            from doabench.features.observations import recording_features
 
-            audio = torch.as_tensor(np.ascontiguousarray(episode.audio), dtype=torch.float32, device=self.device)
-            vad = torch.as_tensor(np.asarray(episode.sample_vad, bool), device=self.device)
-            feats = self._extractor(array)(audio[None], vad[None])
-            feats = {k: v[0].detach().cpu().numpy() for k, v in feats.items()}
+            feats = recording_features(self._extractor(array), episode.audio, episode.sample_vad, self.features,
+                                       self.frame_spec, self.device)
             truth = episode.frame_truth(self.frame_spec)
         n = len(truth["directions"])
         feats["vad"] = feats["vad"].astype(np.int64) if "vad" in feats else truth["vad"].astype(np.int64)

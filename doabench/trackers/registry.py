@@ -49,6 +49,7 @@ def _load_builtins() -> None:
     if not _BUILTINS_LOADED:
         _BUILTINS_LOADED = True
         importlib.import_module("doabench.trackers.srp")
+        importlib.import_module("doabench.trackers.pra")
 
 
 def _load_entry_points() -> None:
