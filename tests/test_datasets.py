@@ -277,6 +277,8 @@ def test_replay_a_dataset_file_as_a_task(reference, tmp_path):
     with DatasetFile(reference) as f:
         np.testing.assert_array_equal(obs["srp"], f.read(3, ["srp:8x16"])["srp:8x16"][0])
     assert info["metadata"]["episode_index"] == 3
+    _, framed, _ = DoaEnv(task, features=("srp", "audio"), resolution=(8, 16)).load_episode(0)
+    assert framed["audio"].shape == (len(framed["srp"]), 12, 4096)  # the env's framed audio observation
     # A resolution that is not stored is computed from the stored audio, like the live task does.
     live = DoaEnv(TASK, features=("srp",), resolution=(2, 4))
     env2 = DoaEnv(task, features=("srp",), resolution=(2, 4))

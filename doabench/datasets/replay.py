@@ -26,7 +26,7 @@ from doabench.datasets.reader import DatasetFile
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import InputError, NotFoundError
-from doabench.framing import FrameSpec
+from doabench.framing import FrameSpec, frame_signal
 
 PREFIX = "file:"
 KIND = "dataset"
@@ -125,6 +125,8 @@ class DatasetEpisodes:
                              "regenerate the file with those features or with audio")
         stored = self.file.read(index, names)
         feats = {k: np.asarray(stored[n], np.float32) for k, n in zip(kinds, names)}
+        if "audio" in feats:  # the environment's audio observation is framed: (T, M, window)
+            feats["audio"] = np.moveaxis(frame_signal(feats["audio"], frame_spec.window, frame_spec.hop), 0, 1)
         truth = self.file.truth(index)
         feats["vad"] = truth["vad"].astype(np.int64)
         g = self.file.group(index)

@@ -120,11 +120,19 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
     return int(m.group(1)), int(m.group(2))
 
 
+def _plain(obj: Any) -> Any:
+    import numpy as np
+
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.generic,)):
+        return obj.item()
+    return str(obj)  # paths, enums, anything else a source describes itself with
+
+
 def dumps(obj: Any) -> str:
     """Canonical JSON (sorted keys) for attributes; numpy values become plain numbers."""
-    from doabench.results.files import to_json
-
-    return json.dumps(json.loads(to_json(obj, indent=None)), sort_keys=True)
+    return json.dumps(obj, sort_keys=True, default=_plain)
 
 
 def loads_attr(value: Any, what: str, path: str | Path) -> Any:
