@@ -33,7 +33,7 @@ SINC_HALF = 16  # windowed-sinc half length in samples (pyroomacoustics frac_del
 OVERSAMPLE = 8  # fractional-delay grid: 1/8 sample, linear interpolation in between
 _BLOCK = 16  # outputs per strided-convolution step (speed only; results do not depend on it)
 _TAIL_FIT_MIN_SAMPLES = 32  # below this many usable ISM samples the tail level is theoretical
-_CHUNK_ELEMENTS = 3_000_000  # bounds the temporaries of one chunk of trajectory points
+_CHUNK_ELEMENTS = 8_000_000  # bounds the temporaries of one chunk of trajectory points
 
 
 # --------------------------------------------------------------------------------------------
@@ -206,16 +206,24 @@ def render_images(
     mics: torch.Tensor,
     fs: int,
     n_out: int,
+    out: torch.Tensor | None = None,
+    workspace: list | None = None,
 ) -> torch.Tensor:
     """Band-limited image-source responses, ``(P, M, n_out)`` float32 on the sources' device.
 
     ``sources`` ``(P, 3)`` and ``mics`` ``(M, 3)`` float tensors (room coordinates, metres). Images
     that cannot reach sample ``n_out`` are skipped. Memory grows with ``P``; callers chunk.
+    ``out``: a contiguous ``(P, M, >= n_out)`` float32 tensor to write the samples into (its
+    first ``n_out`` samples; returned). ``workspace``: a list holding a reusable scratch tensor
+    (callers looping over chunks pass the same list; a fresh 30 MB allocation per chunk costs
+    more in page faults than zeroing a reused one).
     """
     device = sources.device
     P, M = sources.shape[0], mics.shape[0]
+    if out is None:
+        out = torch.empty(P, M, n_out, dtype=torch.float32, device=device)
     if P == 0 or n_out == 0:
-        return torch.zeros(P, M, n_out, device=device)
+        return out
     half, over, block = SINC_HALF, OVERSAMPLE, _BLOCK
     to_samples = fs / SPEED_OF_SOUND
     f32 = dict(dtype=torch.float32, device=device)
@@ -262,13 +270,27 @@ def render_images(
     index += (p_idx * (M * width) + lead)[None]
     index += (torch.arange(M, device=device) * width)[:, None]
     index = index.view(-1)
-    buf = torch.zeros(P * M * width + 1, **f32)  # +1: the w1 write of the last column
+    size = P * M * width + 1  # +1: the w1 write of the last column
+    if workspace is not None and workspace and workspace[0].numel() >= size:
+        buf = workspace[0][:size].zero_()
+    else:
+        buf = torch.zeros(size, **f32)
+        if workspace is not None:
+            workspace[:] = [buf]
     accumulate_(buf[:-1], index, w0.view(-1))
     accumulate_(buf[1:], index, w1.view(-1))
     del dist, amp, frac, w0, w1, index
 
-    out = F.conv1d(buf[:-1].view(P * M, 1, width), _kernel(device), stride=block * over)
-    return out.transpose(1, 2).reshape(P, M, n_blocks * block)[..., :n_out]
+    conv = F.conv1d(buf[:-1].view(P * M, 1, width), _kernel(device), stride=block * over)
+    del buf
+    # conv is (rows, sample-in-block, block); copy it transposed straight into `out`
+    rows = out.view(P * M, out.shape[-1])
+    full = n_out // block
+    rows[:, : full * block].view(P * M, full, block).copy_(conv[..., :full].transpose(1, 2))
+    rest = n_out - full * block
+    if rest:
+        rows[:, full * block : n_out] = conv[:, :rest, full]
+    return out[..., :n_out]
 
 
 # --------------------------------------------------------------------------------------------
@@ -303,37 +325,32 @@ def tail_level(
     return torch.where(usable.sum(-1) >= _TAIL_FIT_MIN_SAMPLES, fitted, theory)
 
 
-def add_diffuse_tail(
-    early: torch.Tensor,
+def add_diffuse_tail_(
+    rirs: torch.Tensor,
     room: Room,
     fs: int,
     layout: RirLayout,
     delays: torch.Tensor,
     generator: torch.Generator,
-    out: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """Full RIRs ``(P, M, n_taps)`` float32: ``early`` ``(P, M, n_early)`` plus independent
-    exponentially decaying Gaussian noise on ``[n_diff, n_taps)`` for every (point, mic) pair.
+    """Add the diffuse tail in place: ``rirs`` ``(P, M, n_taps)`` float32 holds the image-source
+    part in its first ``n_early`` samples and zeros after; independent exponentially decaying
+    Gaussian noise is added on ``[n_diff, n_taps)`` for every (point, mic) pair.
 
-    Draws ``P * M * (n_taps - n_diff)`` normals from ``generator`` (on ``early``'s device).
-    Writes into ``out`` when given (saves a copy).
+    Draws ``P * M * (n_taps - n_diff)`` normals from ``generator`` (on ``rirs``' device).
     """
-    P, M, _ = early.shape
-    if out is None:
-        out = torch.empty(P, M, layout.n_taps, dtype=torch.float32, device=early.device)
-    out[..., : layout.n_early] = early[..., : layout.n_early]
-    out[..., layout.n_early :] = 0.0
     if room.t60 == 0 or layout.n_taps <= layout.n_diff:
-        return out
-    level = tail_level(early, room, fs, layout, delays)  # (P, M)
-    n = torch.arange(layout.n_diff, layout.n_taps, device=early.device, dtype=torch.float64)
+        return rirs
+    P, M, _ = rirs.shape
+    level = tail_level(rirs[..., : layout.n_early], room, fs, layout, delays)  # (P, M)
+    n = torch.arange(layout.n_diff, layout.n_taps, device=rirs.device, dtype=torch.float64)
     env = torch.exp(-0.5 * decay_rate(room.t60) * n / fs).to(torch.float32)  # amplitude
     noise = torch.randn(
-        P, M, layout.n_taps - layout.n_diff, generator=generator, device=early.device, dtype=torch.float32
+        P, M, layout.n_taps - layout.n_diff, generator=generator, device=rirs.device, dtype=torch.float32
     )
     noise.mul_(env).mul_(level.sqrt().to(torch.float32)[..., None])
-    out[..., layout.n_diff :] += noise
-    return out
+    rirs[..., layout.n_diff :] += noise
+    return rirs
 
 
 # --------------------------------------------------------------------------------------------
@@ -373,10 +390,12 @@ def image_source_rirs(
     S, M = sources.shape[0], mics.shape[0]
     out = torch.empty(S, M, layout.n_taps, dtype=torch.float32, device=sources.device)
     step = _points_per_chunk(room, M, len(images), layout, fs)
+    scratch: list = []
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
-        early = render_images(images, sources[p0:p1], mics, fs, layout.n_early)
-        add_diffuse_tail(early, room, fs, layout, delays[p0:p1], generator, out=out[p0:p1])
+        render_images(images, sources[p0:p1], mics, fs, layout.n_early, out=out[p0:p1], workspace=scratch)
+        out[p0:p1, :, layout.n_early :] = 0.0
+        add_diffuse_tail_(out[p0:p1], room, fs, layout, delays[p0:p1], generator)
     return out
 
 
@@ -389,7 +408,8 @@ def direct_rirs(sources: torch.Tensor, mics: torch.Tensor, fs: int) -> torch.Ten
     S, M = sources.shape[0], mics.shape[0]
     out = torch.empty(S, M, layout.n_taps, dtype=torch.float32, device=sources.device)
     step = _points_per_chunk(None, M, 1, layout, fs)
+    scratch: list = []
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
-        out[p0:p1] = render_images(images, sources[p0:p1], mics, fs, layout.n_taps)
+        render_images(images, sources[p0:p1], mics, fs, layout.n_taps, out=out[p0:p1], workspace=scratch)
     return out

@@ -168,7 +168,7 @@ def direct_path(
     src, mic, fs = prepare_geometry(room, sources, mics, fs)
     x = _signal(signal)
     dev = engine.resolve_device(device)
-    h = engine.direct_rirs(torch.as_tensor(src, device=dev), torch.as_tensor(mic, device=dev), fs)
+    h = engine.direct_rirs(torch.tensor(src, device=dev), torch.tensor(mic, device=dev), fs)
     return convolve_trajectory(h, torch.as_tensor(x, device=dev)).cpu().numpy()
 
 
@@ -223,8 +223,8 @@ class BuiltinSimulator(_TorchBackend):
         }
 
     def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
-        src = torch.as_tensor(sources, device=self.device)
-        mic = torch.as_tensor(mics, device=self.device)
+        src = torch.tensor(sources, device=self.device)
+        mic = torch.tensor(mics, device=self.device)
         return engine.image_source_rirs(room, src, mic, fs, generator)
 
 
@@ -319,12 +319,14 @@ class PyroomacousticsSimulator(_TorchBackend):
         return early
 
     def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
-        src = torch.as_tensor(sources, device=self.device)
-        mic = torch.as_tensor(mics, device=self.device)
+        src = torch.tensor(sources, device=self.device)
+        mic = torch.tensor(mics, device=self.device)
         delays = engine.direct_delays(src, mic, fs)
         layout = engine.rir_layout(room, float(delays.max()), fs)
-        early = torch.as_tensor(self.early_part(room, sources, mics, fs, layout), device=self.device)
-        return engine.add_diffuse_tail(early, room, fs, layout, delays, generator)
+        early = self.early_part(room, sources, mics, fs, layout)
+        out = torch.zeros(len(sources), len(mics), layout.n_taps, dtype=torch.float32, device=self.device)
+        out[..., : layout.n_early] = torch.as_tensor(early, device=self.device)
+        return engine.add_diffuse_tail_(out, room, fs, layout, delays, generator)
 
 
 GPURIR_INSTALL = (

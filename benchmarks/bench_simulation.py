@@ -1,0 +1,103 @@
+"""Time to simulate one 20 s, 156-point, 12-microphone (NAO) moving-source trajectory.
+
+Scenes come from the paper's ranges (doabench.acoustics.scenes, moving sources only): rooms from
+3x3x2.5 to 10x8x6 m, T60 0.2-1.3 s, absorption weights 0.5-1, array in the lower half of the
+room 10 % away from the walls. The signal is 20 s of white noise at 16 kHz (the cost does not
+depend on the signal). Each backend simulates the same scenes with the same seed; the
+pyroomacoustics backend (slow) may be run on the first few scenes only, and the speed-up is
+computed on the scenes both ran.
+
+    .venv/bin/python benchmarks/bench_simulation.py --scenes 20 --pra-scenes 20
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import numpy as np
+import torch
+
+from doabench.acoustics.scenes import SceneDistribution, sample_scene
+from doabench.acoustics.simulators import get_simulator
+
+
+def _cpu_name() -> str:
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=int, default=20)
+    ap.add_argument("--pra-scenes", type=int, default=20, help="scenes also run with pyroomacoustics (0: none)")
+    ap.add_argument("--device", default=None, help="builtin backend device (cpu, cuda)")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument("--seed", type=int, default=1000)
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+
+    dist = SceneDistribution(p_static=0.0)
+    scenes = [sample_scene(dist, args.seed + i) for i in range(args.scenes)]
+    signal = np.random.default_rng(args.seed).standard_normal(int(dist.duration_s * dist.fs)).astype(np.float32)
+    backends = {"builtin": get_simulator("builtin", device=args.device)}
+    if args.pra_scenes > 0:
+        backends["pyroomacoustics"] = get_simulator("pyroomacoustics")
+
+    # warm-up (allocator, FFT plans) on a small problem
+    sc = scenes[0]
+    backends["builtin"].simulate(sc.room, sc.trajectory[:4], sc.array_position + sc.mic_positions,
+                                 signal[:16000], dist.fs, seed=0)
+
+    times: dict[str, list[float]] = {name: [] for name in backends}
+    cpu: dict[str, list[float]] = {name: [] for name in backends}  # process CPU time, all threads
+    print("wall time per trajectory (process CPU time in parentheses)")
+    print(f"{'scene':>5} {'room (m)':>16} {'T60':>5} " + " ".join(f"{n:>16}" for n in backends))
+    load_before = os.getloadavg()
+    for i, sc in enumerate(scenes):
+        mics = sc.array_position + sc.mic_positions
+        row = []
+        for name, sim in backends.items():
+            if name == "pyroomacoustics" and i >= args.pra_scenes:
+                row.append(f"{'-':>16}")
+                continue
+            if sim.name == "builtin" and sim.device.type == "cuda":
+                torch.cuda.synchronize()
+            t0, c0 = time.perf_counter(), time.process_time()
+            y = sim.simulate(sc.room, sc.trajectory, mics, signal, dist.fs, seed=sc.seed)
+            dt, dc = time.perf_counter() - t0, time.process_time() - c0
+            assert y.shape == (len(mics), len(signal)) and np.all(np.isfinite(y))
+            times[name].append(dt)
+            cpu[name].append(dc)
+            row.append(f"{dt:>8.3f}s ({dc:.2f})")
+        dims = "x".join(f"{d:.1f}" for d in sc.room.dims)
+        print(f"{i:>5} {dims:>16} {sc.room.t60:>5.2f} " + " ".join(row), flush=True)
+    load_after = os.getloadavg()
+
+    print()
+    print(f"machine: {_cpu_name()}, {os.cpu_count()} CPUs, torch {torch.__version__}, "
+          f"{torch.get_num_threads()} torch threads, builtin device {backends['builtin'].device}")
+    print(f"1-min load average before/after: {load_before[0]:.1f} / {load_after[0]:.1f}")
+    print()
+    print("| backend | scenes | mean s / trajectory | median s | min s | max s | mean CPU s |")
+    print("|---|---|---|---|---|---|---|")
+    for name, ts in times.items():
+        t = np.array(ts)
+        print(f"| {name} | {len(t)} | {t.mean():.3f} | {np.median(t):.3f} | {t.min():.3f} | {t.max():.3f} "
+              f"| {np.mean(cpu[name]):.3f} |")
+    if "pyroomacoustics" in times and times["pyroomacoustics"]:
+        n = len(times["pyroomacoustics"])
+        b, p = np.array(times["builtin"][:n]), np.array(times["pyroomacoustics"])
+        print(f"\nspeed-up on the {n} common scenes: {p.sum() / b.sum():.1f}x (total time), "
+              f"median per scene {np.median(p / b):.1f}x")
+
+
+if __name__ == "__main__":
+    main()
