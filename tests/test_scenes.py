@@ -163,3 +163,12 @@ def test_segment_convention_and_directions():
 def test_room_is_the_rir_engine_room():
     sc = sample_scene(DIST, 0)
     assert isinstance(sc.room, Room) and sc.room.to_dict() == sc.to_dict()["room"]
+
+
+def test_scene_dicts_are_fresh_objects():
+    sc = sample_scene(DIST.replace(duration_s=1.0), 5, EmbeddedSpeechSource())
+    d = sc.to_dict()
+    d["speech"]["start"] = -1
+    d["trajectory_params"]["tries"] = -1
+    assert sc.to_dict()["speech"]["start"] >= 0 and sc.to_dict()["trajectory_params"]["tries"] >= 1
+    assert sc.to_dict()["speech"] is not sc.to_dict()["speech"]

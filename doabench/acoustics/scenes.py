@@ -12,6 +12,7 @@ range key also accepts a single number (``t60 = 0.9`` is ``t60 = [0.9, 0.9]``).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -233,6 +234,8 @@ class Scene:
         if self.static:
             _check(bool(np.all(traj == traj[0])), "a static scene's trajectory points must all be equal")
         object.__setattr__(self, "snr_db", float(self.snr_db))
+        object.__setattr__(self, "speech", copy.deepcopy(self.speech))  # not shared with the caller
+        object.__setattr__(self, "trajectory_params", copy.deepcopy(dict(self.trajectory_params)))
         object.__setattr__(self, "fs", int(self.fs))
         check_inside(self.room, self.array_position[None], "array centre")
         check_inside(self.room, self.mic_room_positions, "microphone")
@@ -280,9 +283,9 @@ class Scene:
             "seed": int(self.seed),
             "duration_s": float(self.duration_s),
             "fs": self.fs,
-            "speech": self.speech,
+            "speech": copy.deepcopy(self.speech),  # fresh objects: callers may mutate the dict
             "directional_noise": None if self.directional_noise is None else self.directional_noise.to_dict(),
-            "trajectory_params": self.trajectory_params,
+            "trajectory_params": copy.deepcopy(self.trajectory_params),
         }
 
     @classmethod
