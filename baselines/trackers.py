@@ -1,0 +1,391 @@
+"""Tracker classes of the neural models, built on doabench's public plugin API only.
+
+Registered ids (``--tracker ID[:SPEC]`` with ``--tracker-opt key=value``):
+
+* ``cross3d[:RES]``  – Cross3D on SRP maps (``srp``, ``srp_max``); RES defaults to the highest
+  resolution with shipped weights, else 8x16.
+* ``gcc-cnn1d``      – 1D CNN on GCC-PHAT (``gcc``); option ``array`` (default ``nao``).
+* ``max-cnn1d[:RES]``– 1D CNN on the map maxima (``srp_max``); RES defaults to 64x128.
+* ``spec-cnn2d``     – causal 2D CNN on spectrograms (``spectrogram``, K = 4096).
+* ``seldnet``        – SELDnet DOA replica on spectrograms (K = 512), offline (``track``).
+
+Common options: ``weights=FILE`` (default: the shipped file if any, else random initialisation;
+``weights=random`` forces it), ``device=cpu|cuda[:N]``, ``seed=N`` (random initialisation).
+Untrained trackers warn once and say ``trained: false`` in :meth:`describe`.
+
+Causal trackers run one frame per :meth:`step` through a :class:`StreamingRunner`; their
+:meth:`track` streams the episode in chunks and gives the same directions.
+"""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+import torch
+from torch import nn
+
+import doabench
+from doabench.errors import ConfigError
+
+from .cnn1d import CausalCnn1d
+from .cnn2d import SpecCnn2d
+from .cross3d import Cross3D, cross3d_input
+from .layers import count_parameters, receptive_field_seconds
+from .seldnet import Seldnet
+from .streaming import StreamingRunner
+from .weights import (check_array, check_metadata, load_into, load_weights, make_metadata, parse_resolution,
+                      read_metadata, resolution_text, save_weights, sha256_file, shipped_resolutions, shipped_weights)
+
+_INITIAL_DIRECTION = np.array([1.0, 0.0, 0.0])  # until the network gives a usable direction
+_RANDOM = ("random", "none", "")
+_TRACK_CHUNK = 64  # frames per forward pass in track(): bounds memory on long episodes
+
+
+def _device(text: str) -> torch.device:
+    try:
+        device = torch.device(text)
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"unknown device {text!r}: use cpu or cuda[:N]") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {text!r} requested but CUDA is not available; use device=cpu")
+    if device.type not in ("cpu", "cuda"):
+        raise ConfigError(f"unsupported device {text!r}: use cpu or cuda[:N]")
+    return device
+
+
+class NeuralTracker(doabench.Tracker):
+    """Shared machinery: weights, device, describe, streaming, direction normalisation."""
+
+    causal: ClassVar[bool] = True
+    #: model id used in weight files (the registry id)
+    model_name: ClassVar[str] = ""
+    #: whether the model is tied to an SRP map resolution (part of the weight file name)
+    uses_resolution: ClassVar[bool] = False
+    default_frame_spec: ClassVar[doabench.FrameSpec] = doabench.FrameSpec()
+
+    def __init__(self, spec: str | None = None, weights: str | None = None, device: str = "cpu",
+                 seed: int = 0, resolution: str | None = None, array: str | None = None) -> None:
+        super().__init__(spec)
+        if not self.uses_resolution and (spec or resolution):
+            raise ConfigError(f"tracker {self.model_name!r} takes no map resolution (got {spec or resolution!r})")
+        self.options = {"weights": weights, "device": device, "seed": seed, "resolution": resolution, "array": array}
+        self.device = _device(str(device))
+        self._weights_path, self._meta = self._find_weights(weights, resolution or spec)
+        meta = self._meta or {}
+        self._resolution = self._pick_resolution(resolution or spec, meta)
+        if self._meta is not None and self.uses_resolution:
+            # Re-check now that the resolution is settled (a weight file for other maps is an error).
+            check_metadata(self._meta, self._weights_path, resolution=self._resolution)
+        self._array = self._pick_array(array, meta)
+        feats = meta.get("features", {})
+        self._frame_spec = (doabench.FrameSpec(feats["window"], feats["hop"], feats["fs"])
+                            if self._meta is not None else self.default_frame_spec)
+        with torch.random.fork_rng(devices=[]):  # reproducible random init, global RNG untouched
+            torch.manual_seed(int(seed))
+            self.model = self.build_model()
+        if self._meta is not None:
+            state, _ = load_weights(self._weights_path, model_name=self.model_name, frame_spec=self._frame_spec)
+            load_into(self.model, state, self._weights_path)
+            self._hash = sha256_file(self._weights_path)
+        else:
+            self._hash = None
+            warnings.warn(f"{self.model_name}: no trained weights{self._for_resolution()}; using a randomly "
+                          "initialised model (describe() reports trained: false). Pass weights=FILE.",
+                          stacklevel=3)
+        self.model = self.model.to(self.device).eval()
+        self._runner = StreamingRunner(self.model) if self.causal else None
+        self._last = _INITIAL_DIRECTION.copy()
+
+    # -- construction helpers ---------------------------------------------------------------------
+    def build_model(self) -> nn.Module:
+        raise NotImplementedError
+
+    def _for_resolution(self) -> str:
+        return f" for {resolution_text(self._resolution)} maps" if self.uses_resolution and self._resolution else ""
+
+    def _default_resolution(self) -> tuple[int, int] | None:
+        return None
+
+    def _find_weights(self, weights: str | None, res_text: str | None) -> tuple[Path | None, dict | None]:
+        if weights is not None and str(weights).lower() in _RANDOM:
+            return None, None
+        if weights is not None:
+            path = Path(str(weights)).expanduser()
+            meta = read_metadata(path)
+            check_metadata(meta, path, model_name=self.model_name)
+            return path, meta
+        res = None
+        if self.uses_resolution:
+            res = parse_resolution(res_text) if res_text else self._default_resolution()
+        path = shipped_weights(self.model_name, res)
+        return (path, read_metadata(path)) if path is not None else (None, None)
+
+    def _pick_resolution(self, res_text: str | None, meta: Mapping[str, Any]) -> tuple[int, int] | None:
+        if not self.uses_resolution:
+            return None
+        if res_text:
+            return parse_resolution(res_text)
+        if meta.get("resolution"):
+            return parse_resolution(meta["resolution"])
+        return self._default_resolution()
+
+    def _pick_array(self, array: str | None, meta: Mapping[str, Any]) -> doabench.MicArray:
+        if meta.get("array"):
+            trained = doabench.MicArray(meta["array"]["name"], np.asarray(meta["array"]["positions"], dtype=float))
+            if array is not None:
+                check_array(meta, doabench.get_array(array), f"weights file {self._weights_path.name}")
+            return trained
+        return doabench.get_array(array or "nao")
+
+    # -- what the environment needs -----------------------------------------------------------------
+    @property
+    def resolution(self) -> tuple[int, int] | None:
+        return self._resolution
+
+    @property
+    def frame_spec(self) -> doabench.FrameSpec:
+        return self._frame_spec
+
+    @property
+    def receptive_field_frames(self) -> int | None:
+        return getattr(self.model, "receptive_field", None)
+
+    @property
+    def trained(self) -> bool:
+        return self._meta is not None
+
+    def weights_hash(self) -> str | None:
+        return self._hash
+
+    def parameter_count(self) -> int:
+        return count_parameters(self.model)
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        rf = self.receptive_field_frames
+        fs = self.frame_spec
+        d.update(
+            model=self.model_name,
+            trained=self.trained,
+            weights=None if self._weights_path is None else str(self._weights_path),
+            device=str(self.device),
+            array=self._array.name,
+            receptive_field_s=None if rf is None else round(receptive_field_seconds(rf, fs.window, fs.hop, fs.fs), 3),
+            training=(self._meta or {}).get("training"),
+            trained_features=(self._meta or {}).get("features"),
+        )
+        return d
+
+    def save_weights(self, path: str | Path, training: Mapping[str, Any] | None = None,
+                     delay_mode: str | None = "nearest") -> Path:
+        """Write this tracker's model to a weight file with the metadata it needs to be reloaded."""
+        config = {"resolution": resolution_text(self._resolution)} if self.uses_resolution else {}
+        meta = make_metadata(self.model_name, self.model, array=self._array, frame_spec=self.frame_spec,
+                             features=self.features, resolution=self._resolution, delay_mode=delay_mode,
+                             model_config=config, training=training)
+        return save_weights(path, self.model, meta)
+
+    # -- running --------------------------------------------------------------------------------------
+    def reset(self, array: doabench.MicArray, **context: Any) -> None:
+        frame_spec = context.get("frame_spec")
+        if frame_spec is not None and (frame_spec.window, frame_spec.hop, frame_spec.fs) != (
+                self.frame_spec.window, self.frame_spec.hop, self.frame_spec.fs):
+            raise ConfigError(f"tracker {self.name!r} needs frames {self.frame_spec.to_dict()}, "
+                              f"the environment gives {frame_spec.to_dict()}")
+        if self._meta is not None:
+            check_array(self._meta, array, f"tracker {self.name!r}: weights file {self._weights_path.name}")
+        self.check_array_fits(array)
+        if self._runner is not None:
+            self._runner.reset()
+        self._last = _INITIAL_DIRECTION.copy()
+
+    def check_array_fits(self, array: doabench.MicArray) -> None:
+        """Raise ConfigError when the episode's array cannot feed the model's input layer."""
+
+    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
+        """One observation -> the model's input frame ``(1, *frame_shape)``."""
+        raise NotImplementedError
+
+    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
+        """A whole episode -> the model's input ``(1, C, frames, *space)``."""
+        n = len(episode["vad"])
+        frames = [self.frame_input({k: v[t] for k, v in episode.items()}) for t in range(n)]
+        return torch.stack(frames, dim=2)
+
+    def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        if self._runner is None:
+            return super().step(observation)  # offline model: the base class says to use track()
+        y = self._runner.step(self.frame_input(observation))[0]
+        return self._direction(y.detach().to("cpu", torch.float64).numpy())
+
+    def track(self, episode: Mapping[str, np.ndarray]) -> np.ndarray:
+        n = len(episode["vad"])
+        if n == 0:
+            return np.zeros((0, 3))
+        x = self.episode_input(episode)
+        with torch.inference_mode():
+            if self.causal:
+                state, parts = self.model.init_state(), []
+                for chunk in torch.split(x, _TRACK_CHUNK, dim=2):
+                    y, state = self.model.stream_chunk(chunk, state)
+                    parts.append(y)
+                y = torch.cat(parts, dim=1)
+            else:
+                y = self.model(x)
+        self._last = _INITIAL_DIRECTION.copy()
+        return np.stack([self._direction(v) for v in y[0].to("cpu", torch.float64).numpy()])
+
+    def _direction(self, y: np.ndarray) -> np.ndarray:
+        """Normalise the network output; keep the previous direction if it is (near) zero or NaN."""
+        norm = float(np.linalg.norm(y))
+        if np.isfinite(norm) and norm > 1e-6:
+            self._last = y / norm
+        return self._last.copy()
+
+    def _tensor(self, a: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(np.asarray(a, dtype=np.float32), device=self.device)
+
+
+@doabench.register_tracker("cross3d")
+class Cross3DTracker(NeuralTracker):
+    """Cross3D (paper IV-B) on SRP-PHAT maps and their maxima; spec = map resolution."""
+
+    model_name = "cross3d"
+    features = ("srp", "srp_max")
+    uses_resolution = True
+
+    def _default_resolution(self) -> tuple[int, int]:
+        shipped = shipped_resolutions(self.model_name)
+        return shipped[-1] if shipped else (8, 16)
+
+    def build_model(self) -> nn.Module:
+        return Cross3D(*self._resolution)
+
+    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
+        srp = observation["srp"]
+        if tuple(srp.shape) != self._resolution:
+            raise ConfigError(f"tracker {self.name!r} expects {resolution_text(self._resolution)} maps, "
+                              f"got {'x'.join(map(str, srp.shape))}")
+        return cross3d_input(self._tensor(srp), self._tensor(observation["srp_max"]))[None]
+
+    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
+        srp = self._tensor(episode["srp"])  # (T, n_theta, n_phi)
+        if tuple(srp.shape[1:]) != self._resolution:
+            raise ConfigError(f"tracker {self.name!r} expects {resolution_text(self._resolution)} maps, "
+                              f"got {'x'.join(map(str, srp.shape[1:]))}")
+        x = cross3d_input(srp, self._tensor(episode["srp_max"]))  # (T, 3, n_theta, n_phi)
+        return x.transpose(0, 1)[None]
+
+
+@doabench.register_tracker("max-cnn1d")
+class MaxCnn1dTracker(NeuralTracker):
+    """1D CNN over the normalised coordinates of each map's maximum (paper V-A); spec = resolution."""
+
+    model_name = "max-cnn1d"
+    features = ("srp_max",)
+    uses_resolution = True
+
+    def _default_resolution(self) -> tuple[int, int]:
+        return (64, 128)
+
+    def build_model(self) -> nn.Module:
+        return CausalCnn1d(2)
+
+    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
+        return self._tensor(observation["srp_max"]).reshape(1, 2)
+
+    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
+        return self._tensor(episode["srp_max"]).reshape(-1, 2).T[None]
+
+
+def _n_lags(array: doabench.MicArray, fs: int) -> int:
+    return 2 * array.max_lag(fs) + 1
+
+
+@doabench.register_tracker("gcc-cnn1d")
+class GccCnn1dTracker(NeuralTracker):
+    """1D CNN over the GCC-PHAT values within the physical lag range (paper V-A)."""
+
+    model_name = "gcc-cnn1d"
+    features = ("gcc",)
+
+    def build_model(self) -> nn.Module:
+        self._gcc_shape = (len(self._array.pairs), _n_lags(self._array, self.frame_spec.fs))
+        return CausalCnn1d(self._gcc_shape[0] * self._gcc_shape[1])
+
+    def check_array_fits(self, array: doabench.MicArray) -> None:
+        shape = (len(array.pairs), _n_lags(array, self.frame_spec.fs))
+        if shape != self._gcc_shape:
+            raise ConfigError(f"tracker {self.name!r} was built for array {self._array.name!r} "
+                              f"({self._gcc_shape[0]} pairs x {self._gcc_shape[1]} lags); array {array.name!r} "
+                              f"gives {shape[0]} x {shape[1]}: pass --tracker-opt array=NAME_OR_FILE")
+
+    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
+        gcc = observation["gcc"]
+        if tuple(gcc.shape) != self._gcc_shape:
+            raise ConfigError(f"tracker {self.name!r} expects gcc of shape {self._gcc_shape}, got {tuple(gcc.shape)}")
+        return self._tensor(gcc).reshape(1, -1)  # pair-major, lag-minor
+
+    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
+        gcc = self._tensor(episode["gcc"])
+        if tuple(gcc.shape[1:]) != self._gcc_shape:
+            raise ConfigError(f"tracker {self.name!r} expects gcc of shape {self._gcc_shape}, got {tuple(gcc.shape[1:])}")
+        return gcc.reshape(gcc.shape[0], -1).T[None]
+
+
+class _SpectrogramTracker(NeuralTracker):
+    features = ("spectrogram",)
+
+    def _spec_shape(self) -> tuple[int, int]:
+        return (2 * self._array.n_mics, self.frame_spec.window // 2)
+
+    def check_array_fits(self, array: doabench.MicArray) -> None:
+        if 2 * array.n_mics != self._spec_shape()[0]:
+            raise ConfigError(f"tracker {self.name!r} was built for {self._array.n_mics} microphones "
+                              f"(array {self._array.name!r}); array {array.name!r} has {array.n_mics}: "
+                              "pass --tracker-opt array=NAME_OR_FILE")
+
+    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
+        s = observation["spectrogram"]
+        if tuple(s.shape) != self._spec_shape():
+            raise ConfigError(f"tracker {self.name!r} expects spectrograms of shape {self._spec_shape()}, "
+                              f"got {tuple(s.shape)}")
+        return self._tensor(s)[None]
+
+    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
+        s = self._tensor(episode["spectrogram"])  # (T, 2 n_mics, bins)
+        if tuple(s.shape[1:]) != self._spec_shape():
+            raise ConfigError(f"tracker {self.name!r} expects spectrograms of shape {self._spec_shape()}, "
+                              f"got {tuple(s.shape[1:])}")
+        return s.transpose(0, 1)[None]
+
+
+@doabench.register_tracker("spec-cnn2d")
+class SpecCnn2dTracker(_SpectrogramTracker):
+    """Causal 2D CNN over magnitude and phase spectrograms, K = 4096 (paper V-A)."""
+
+    model_name = "spec-cnn2d"
+
+    def build_model(self) -> nn.Module:
+        channels, bins = self._spec_shape()
+        return SpecCnn2d(channels, bins)
+
+
+@doabench.register_tracker("seldnet")
+class SeldnetTracker(_SpectrogramTracker):
+    """SELDnet DOA-branch replica (paper V-A): offline, bidirectional GRUs, K = 512 windows.
+
+    Frames: 512-sample windows with doabench's 3/4-window hop (384 samples, 24 ms), so its
+    estimates are on a finer time grid than the K = 4096 models; the scores compare each tracker
+    with the truth of its own frames.
+    """
+
+    model_name = "seldnet"
+    causal = False
+    default_frame_spec = doabench.FrameSpec(window=512)
+
+    def build_model(self) -> nn.Module:
+        channels, bins = self._spec_shape()
+        return Seldnet(channels, bins)

@@ -1,0 +1,221 @@
+"""Weight files: safetensors (tensors only, loading never executes code) plus JSON metadata.
+
+The metadata, stored as JSON under the ``doabench`` key of the safetensors header, records what
+the weights were trained for, and loading checks it against what the caller is about to use::
+
+    {"format": "doabench-weights/1", "model": "cross3d", "resolution": "16x32",
+     "model_config": {"n_theta": 16, "n_phi": 32},
+     "array": {"name": "nao", "positions": [[x, y, z], ...]},
+     "features": {"kinds": ["srp", "srp_max"], "window": 4096, "hop": 3072, "fs": 16000,
+                  "delay_mode": "nearest"},
+     "training": {...free-form recipe summary...}, "parameters": 1693988,
+     "doabench_version": "0.1.0", "date": "2026-01-01T00:00:00+00:00"}
+
+Shipped weights live in ``baselines/weights/<model>-<resolution>.safetensors`` (models without a
+map resolution: ``<model>.safetensors``).
+"""
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+import doabench
+from doabench.errors import ConfigError, InputError, NotFoundError
+
+FORMAT = "doabench-weights/1"
+METADATA_KEY = "doabench"
+SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
+#: largest microphone displacement (m) between the weights' array and the one in use
+ARRAY_TOLERANCE_M = 0.005
+
+
+def resolution_text(resolution: tuple[int, int] | None) -> str | None:
+    return None if resolution is None else "%dx%d" % tuple(resolution)
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    """``"16x32"`` -> ``(16, 32)``; ConfigError otherwise."""
+    try:
+        a, b = str(text).lower().split("x")
+        n_theta, n_phi = int(a), int(b)
+    except ValueError:
+        raise ConfigError(f"resolution {text!r} is not of the form N_THETAxN_PHI, e.g. 16x32") from None
+    if n_theta < 2 or n_phi < 2:
+        raise ConfigError(f"resolution {text!r}: both N_theta and N_phi must be at least 2")
+    return n_theta, n_phi
+
+
+def sha256_file(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def make_metadata(
+    model_name: str,
+    model: nn.Module,
+    *,
+    array: "doabench.MicArray",
+    frame_spec: "doabench.FrameSpec",
+    features: Sequence[str],
+    resolution: tuple[int, int] | None = None,
+    delay_mode: str | None = "nearest",
+    model_config: Mapping[str, Any] | None = None,
+    training: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The metadata dict of a weight file (see the module docstring)."""
+    return {
+        "format": FORMAT,
+        "model": model_name,
+        "resolution": resolution_text(resolution),
+        "model_config": dict(model_config or {}),
+        "array": {"name": array.name, "positions": np.asarray(array.positions, dtype=float).round(6).tolist()},
+        "features": {"kinds": list(features), "window": frame_spec.window, "hop": frame_spec.hop,
+                     "fs": frame_spec.fs, "delay_mode": delay_mode},
+        "training": dict(training or {}),
+        "parameters": sum(p.numel() for p in model.parameters()),
+        "doabench_version": doabench.__version__,
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+
+
+def save_weights(path: str | Path, model: nn.Module, metadata: Mapping[str, Any]) -> Path:
+    """Write ``model``'s state dict (parameters and buffers, float tensors on CPU) and metadata."""
+    from safetensors.torch import save_file
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
+    tmp = path.with_name(path.name + ".tmp")
+    save_file(tensors, str(tmp), metadata={METADATA_KEY: json.dumps(dict(metadata), sort_keys=True),
+                                           "model": str(metadata.get("model")),
+                                           "resolution": str(metadata.get("resolution"))})
+    tmp.replace(path)  # atomic: a crash never leaves a half-written weight file under the real name
+    return path
+
+
+def _open(path: str | Path):
+    from safetensors import safe_open
+
+    path = Path(path)
+    if not path.is_file():
+        raise NotFoundError(f"weights file {path} does not exist")
+    try:
+        return safe_open(str(path), framework="pt", device="cpu")
+    except Exception as exc:  # any parse failure is the user's file
+        raise InputError(f"weights file {path}: not a safetensors file ({type(exc).__name__}: {exc})") from None
+
+
+def read_metadata(path: str | Path) -> dict[str, Any]:
+    """The doabench metadata of a weight file (InputError if it has none)."""
+    with _open(path) as f:
+        raw = (f.metadata() or {}).get(METADATA_KEY)
+    if raw is None:
+        raise InputError(f"weights file {path}: no doabench metadata (was it written by save_weights?)")
+    try:
+        meta = json.loads(raw)
+    except json.JSONDecodeError:
+        raise InputError(f"weights file {path}: metadata is not valid JSON") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise InputError(f"weights file {path}: unknown metadata format {meta.get('format') if isinstance(meta, dict) else meta!r}")
+    return meta
+
+
+def check_metadata(
+    meta: Mapping[str, Any],
+    path: str | Path,
+    *,
+    model_name: str | None = None,
+    resolution: tuple[int, int] | None = None,
+    array: "doabench.MicArray | None" = None,
+    frame_spec: "doabench.FrameSpec | None" = None,
+    delay_mode: str | None = None,
+) -> None:
+    """Raise ConfigError naming the first thing the weights were not trained for."""
+    where = f"weights file {Path(path).name}"
+    if model_name is not None and meta.get("model") != model_name:
+        raise ConfigError(f"{where} holds a {meta.get('model')!r} model, not {model_name!r}")
+    if resolution is not None and meta.get("resolution") != resolution_text(resolution):
+        raise ConfigError(f"{where} was trained on {meta.get('resolution')} maps, not {resolution_text(resolution)}")
+    if array is not None:
+        check_array(meta, array, where)
+    feats = meta.get("features", {})
+    if frame_spec is not None:
+        want = {"window": frame_spec.window, "hop": frame_spec.hop, "fs": frame_spec.fs}
+        have = {k: feats.get(k) for k in want}
+        if have != want:
+            raise ConfigError(f"{where} was trained with frames {have}, not {want}")
+    if delay_mode is not None and feats.get("delay_mode") not in (None, delay_mode):
+        raise ConfigError(f"{where} was trained with {feats.get('delay_mode')!r} SRP delays, not {delay_mode!r}")
+
+
+def check_array(meta: Mapping[str, Any], array: "doabench.MicArray", where: str) -> None:
+    """The array in use must have the trained array's microphones within ARRAY_TOLERANCE_M."""
+    trained = np.asarray(meta.get("array", {}).get("positions", []), dtype=float)
+    name = meta.get("array", {}).get("name")
+    pos = np.asarray(array.positions, dtype=float)
+    if trained.shape != pos.shape:
+        raise ConfigError(f"{where} was trained for array {name!r} with {len(trained)} microphones; "
+                          f"array {array.name!r} has {len(pos)}")
+    worst = float(np.abs(trained - pos).max()) if pos.size else 0.0
+    if worst > ARRAY_TOLERANCE_M:
+        raise ConfigError(f"{where} was trained for array {name!r}; array {array.name!r} differs by up to "
+                          f"{worst * 1000:.1f} mm (tolerance {ARRAY_TOLERANCE_M * 1000:.0f} mm)")
+
+
+def load_weights(path: str | Path, **expect: Any) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Read a weight file and check its metadata (keywords as :func:`check_metadata`).
+
+    Returns ``(state_dict, metadata)``; tensors are on the CPU.
+    """
+    meta = read_metadata(path)
+    check_metadata(meta, path, **expect)
+    with _open(path) as f:
+        state = {k: f.get_tensor(k) for k in f.keys()}
+    return state, meta
+
+
+def load_into(model: nn.Module, state: Mapping[str, torch.Tensor], path: str | Path) -> None:
+    """``model.load_state_dict`` with key and shape mismatches reported as ConfigError."""
+    own = model.state_dict()
+    missing = sorted(set(own) - set(state))
+    extra = sorted(set(state) - set(own))
+    if missing or extra:
+        raise ConfigError(f"weights file {Path(path).name} does not fit the model: "
+                          f"missing {missing[:3]}, unexpected {extra[:3]}")
+    for k, v in own.items():
+        if tuple(state[k].shape) != tuple(v.shape):
+            raise ConfigError(f"weights file {Path(path).name}: {k} has shape {tuple(state[k].shape)}, "
+                              f"the model needs {tuple(v.shape)}")
+    model.load_state_dict(dict(state))
+
+
+def shipped_path(model_name: str, resolution: tuple[int, int] | None = None) -> Path:
+    suffix = f"-{resolution_text(resolution)}" if resolution is not None else ""
+    return SHIPPED_DIR / f"{model_name}{suffix}.safetensors"
+
+
+def shipped_weights(model_name: str, resolution: tuple[int, int] | None = None) -> Path | None:
+    """The shipped weight file for a model (and resolution), or None."""
+    path = shipped_path(model_name, resolution)
+    return path if path.is_file() else None
+
+
+def shipped_resolutions(model_name: str) -> list[tuple[int, int]]:
+    """Resolutions with shipped weights for ``model_name``, smallest first."""
+    found = []
+    for p in SHIPPED_DIR.glob(f"{model_name}-*.safetensors"):
+        try:
+            found.append(parse_resolution(p.stem[len(model_name) + 1:]))
+        except ConfigError:
+            continue
+    return sorted(found, key=lambda r: (r[0] * r[1], r))

@@ -1,0 +1,83 @@
+"""Per-frame latency of Cross3D streaming inference (one new SRP map in, one direction out).
+
+    .venv/bin/python benchmarks/bench_cross3d_latency.py [--resolutions 8x16 16x32] [--threads 1 2]
+        [--frames 200] [--warmup 40] [--markdown]
+
+For each resolution and intra-op thread count: a randomly initialised model (latency does not
+depend on the weights), ``warmup`` frames to fill the caches and warm the allocator, then
+``frames`` timed ``StreamingRunner.step`` calls under ``torch.inference_mode``. Reports the median
+and 90th percentile of wall-clock time and the median of the process CPU time per frame: on a
+shared machine the wall clock includes time the process waited for a core, the CPU time does not
+(with one thread it is what the frame costs on an idle core). A new map arrives every 192 ms;
+the target is 10 ms per frame at 16x32.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import time
+
+import torch
+
+from doabench_baselines.cross3d import Cross3D
+from doabench_baselines.streaming import StreamingRunner
+
+
+def measure(resolution: tuple[int, int], threads: int, frames: int, warmup: int) -> dict:
+    torch.set_num_threads(threads)
+    torch.manual_seed(0)
+    runner = StreamingRunner(Cross3D(*resolution))
+    x = torch.randn(1, 3, *resolution)
+    x[:, 1:] = torch.rand(1, 2, 1, 1)  # the maximum's coordinates are constant over the map
+    for _ in range(warmup):
+        runner.step(x)
+    wall, cpu = [], []
+    for _ in range(frames):
+        t, c = time.perf_counter(), time.process_time()
+        runner.step(x)
+        cpu.append(time.process_time() - c)
+        wall.append(time.perf_counter() - t)
+    wall.sort()
+    return {
+        "resolution": "%dx%d" % resolution,
+        "threads": threads,
+        "wall_median_ms": 1e3 * statistics.median(wall),
+        "wall_p90_ms": 1e3 * wall[int(0.9 * (len(wall) - 1))],
+        "cpu_median_ms": 1e3 * statistics.median(cpu),
+        "cached_frames": runner.cached_frames(),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--resolutions", nargs="+", default=["8x16", "16x32"])
+    parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
+    parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--warmup", type=int, default=40)
+    parser.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    args = parser.parse_args()
+    rows = []
+    with torch.inference_mode():
+        for text in args.resolutions:
+            n_theta, n_phi = (int(v) for v in text.lower().split("x"))
+            for threads in args.threads:
+                rows.append(measure((n_theta, n_phi), threads, args.frames, args.warmup))
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"# torch {torch.__version__}, {platform.processor() or platform.machine()}, "
+          f"{os.cpu_count()} CPUs, load average {load:.1f}, {args.frames} frames after {args.warmup} warm-up")
+    if args.markdown:
+        print("| resolution | threads | wall median (ms) | wall p90 (ms) | CPU time median (ms) |")
+        print("|---|---|---|---|---|")
+        for r in rows:
+            print(f"| {r['resolution']} | {r['threads']} | {r['wall_median_ms']:.2f} | {r['wall_p90_ms']:.2f} "
+                  f"| {r['cpu_median_ms']:.2f} |")
+    else:
+        for r in rows:
+            print(f"{r['resolution']:>7}  threads={r['threads']}  wall median {r['wall_median_ms']:7.2f} ms  "
+                  f"p90 {r['wall_p90_ms']:7.2f} ms  cpu median {r['cpu_median_ms']:7.2f} ms")
+
+
+if __name__ == "__main__":
+    main()

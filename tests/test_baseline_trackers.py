@@ -1,0 +1,170 @@
+"""The neural trackers through doabench's public API: registry, describe, step/track, errors, a run."""
+from __future__ import annotations
+
+import ast
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import doabench
+from doabench.errors import ConfigError
+import doabench_baselines.trackers as T
+
+ROOT = Path(__file__).resolve().parents[1]
+IDS = ("cross3d", "gcc-cnn1d", "max-cnn1d", "spec-cnn2d", "seldnet")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _make(text, **options):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # untrained-model warning, tested separately
+        return doabench.make_tracker(text, weights="random", **options)
+
+
+def _episode(tracker, n, seed=0):
+    rng = np.random.default_rng(seed)
+    ep = {"vad": np.ones(n)}
+    if "srp" in tracker.features:
+        ep["srp"] = rng.standard_normal((n,) + tracker.resolution).astype(np.float32)
+    if "srp_max" in tracker.features:
+        ep["srp_max"] = rng.random((n, 2)).astype(np.float32)
+    if "gcc" in tracker.features:
+        ep["gcc"] = rng.standard_normal((n, 66, 13)).astype(np.float32)
+    if "spectrogram" in tracker.features:
+        ep["spectrogram"] = rng.random((n, 24, tracker.frame_spec.window // 2)).astype(np.float32)
+    return ep
+
+
+def test_registered_through_the_public_registry():
+    available = doabench.available_trackers()
+    for name in IDS:
+        assert issubclass(available[name], doabench.Tracker)
+    assert isinstance(_make("cross3d:4x8"), T.Cross3DTracker)
+
+
+def test_baselines_import_only_the_public_api():
+    """baselines/ is a plugin: from doabench it may import the package itself and its errors only."""
+    allowed = {"doabench", "doabench.errors"}
+    for path in sorted((ROOT / "baselines").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names = [node.module]
+            for name in names:
+                if name.split(".")[0] == "doabench":
+                    assert name in allowed, f"{path.name} imports {name}"
+
+
+@pytest.mark.parametrize("text,parameters,rf,resolution", [
+    ("cross3d:4x8", 526_372, 29, "4x8"), ("cross3d:8x16", 946_340, 33, "8x16"),
+    ("cross3d:16x32", 1_693_988, 37, "16x32"), ("cross3d:32x64", 5_626_148, 37, "32x64"),
+    ("gcc-cnn1d", 11_282_436, 37, None), ("max-cnn1d", 6_899_716, 37, "64x128"),
+    ("spec-cnn2d", 1_882_372, 37, None), ("seldnet", 104_643, None, None),
+])
+def test_describe(text, parameters, rf, resolution):
+    d = _make(text).describe()
+    assert (d["parameters"], d["receptive_field_frames"], d["resolution"]) == (parameters, rf, resolution)
+    assert d["trained"] is False and d["weights_hash"] is None and d["weights"] is None
+    assert d["name"] == text.split(":")[0]
+
+
+def test_cross3d_describe_at_64x128():
+    d = _make("cross3d:64x128").describe()
+    assert (d["parameters"], d["receptive_field_frames"], d["receptive_field_s"]) == (21_354_788, 37, 7.168)
+
+
+def test_untrained_tracker_warns():
+    with pytest.warns(UserWarning, match="no trained weights for 4x8 maps"):
+        T.Cross3DTracker("4x8", weights="random")
+
+
+@pytest.mark.parametrize("text", ["cross3d:4x8", "cross3d:8x16", "gcc-cnn1d", "max-cnn1d"])
+def test_step_equals_track_and_returns_unit_vectors(text):
+    tracker = _make(text)
+    nao = doabench.get_array("nao")
+    ep = _episode(tracker, 40)
+    tracker.reset(nao, frame_spec=tracker.frame_spec)
+    stepped = np.stack([tracker.step({k: v[t] for k, v in ep.items()}) for t in range(40)])
+    tracker.reset(nao)
+    tracked = tracker.track(ep)
+    assert tracked.shape == (40, 3)
+    np.testing.assert_allclose(np.linalg.norm(stepped, axis=1), 1.0, atol=1e-9)
+    np.testing.assert_allclose(stepped, tracked, atol=1e-5)
+
+
+def test_seldnet_is_offline():
+    tracker = _make("seldnet")
+    assert not tracker.causal and tracker.frame_spec.to_dict() == {"window": 512, "hop": 384, "fs": 16000}
+    tracker.reset(doabench.get_array("nao"))
+    ep = _episode(tracker, 30)
+    out = tracker.track(ep)
+    assert out.shape == (30, 3)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-9)
+    with pytest.raises(NotImplementedError):
+        tracker.step({k: v[0] for k, v in ep.items()})
+
+
+def test_a_zero_network_output_keeps_the_previous_direction():
+    tracker = _make("max-cnn1d")
+    tracker.reset(doabench.get_array("nao"))
+    first = tracker._direction(np.array([0.0, 2.0, 0.0]))
+    assert np.allclose(first, [0, 1, 0])
+    assert np.allclose(tracker._direction(np.zeros(3)), [0, 1, 0])
+    assert np.allclose(tracker._direction(np.array([np.nan, 0, 0])), [0, 1, 0])
+
+
+def test_user_mistakes_are_config_errors():
+    with pytest.raises(ConfigError, match="takes no map resolution"):
+        _make("gcc-cnn1d:16x32")
+    with pytest.raises(ConfigError, match="not of the form"):
+        _make("cross3d:sixteen")
+    with pytest.raises(ConfigError, match="bad options"):
+        _make("cross3d:4x8", colour="red")
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="CUDA is not available"):
+            _make("cross3d:4x8", device="cuda")
+    tracker = _make("cross3d:4x8")
+    tracker.reset(doabench.get_array("nao"))
+    with pytest.raises(ConfigError, match="expects 4x8 maps, got 8x16"):
+        tracker.step({"srp": np.zeros((8, 16), np.float32), "srp_max": np.zeros(2, np.float32), "vad": 1})
+    with pytest.raises(ConfigError, match="needs frames"):
+        tracker.reset(doabench.get_array("nao"), frame_spec=doabench.FrameSpec(window=2048))
+
+
+def test_array_the_input_layer_cannot_take_is_a_config_error():
+    three = doabench.MicArray("three", np.eye(3) * 0.05)
+    for text in ("gcc-cnn1d", "spec-cnn2d"):
+        with pytest.raises(ConfigError, match="array=NAME_OR_FILE"):
+            _make(text).reset(three)
+
+
+def test_gcc_cnn1d_input_width_follows_the_array_option(tmp_path):
+    path = tmp_path / "tri.json"
+    path.write_text('{"name": "tri", "positions": [[0.05, 0, 0], [-0.05, 0, 0], [0, 0.05, 0]]}')
+    tracker = _make("gcc-cnn1d", array=str(path))
+    lags = 2 * doabench.load_array_file(path).max_lag(16000) + 1
+    assert tracker.model.in_channels == 3 * lags
+    tracker.reset(doabench.load_array_file(path))
+
+
+def test_runs_a_task_end_to_end():
+    scene = {"duration_s": 3.0, "n_points": 24}
+    for text in ("cross3d:4x8", "seldnet"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            results = doabench.run(text, "sim-demo", episodes=1, progress=False, scene_overrides=scene,
+                                   tracker_options={"weights": "random"})
+        assert results["tracker"]["trained"] is False
+        assert np.isfinite(results["summary"]["rmsae_all"])

@@ -1,0 +1,138 @@
+"""Weight files of the neural trackers: round trip, metadata checks, shipped-weights lookup."""
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+import doabench
+from doabench.errors import ConfigError, InputError, NotFoundError
+from doabench_baselines import weights as W
+from doabench_baselines.cross3d import Cross3D
+from doabench_baselines.trackers import Cross3DTracker, MaxCnn1dTracker
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _untrained(cls, *args, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return cls(*args, **kwargs)
+
+
+@pytest.fixture
+def cross3d_file(tmp_path):
+    tracker = _untrained(Cross3DTracker, "4x8", weights="random", seed=3)
+    path = tracker.save_weights(tmp_path / "cross3d-4x8.safetensors", training={"epochs": 80, "batch": 5})
+    return tracker, path
+
+
+def _episode(n=35, res=(4, 8), seed=0):
+    rng = np.random.default_rng(seed)
+    return {"srp": rng.standard_normal((n,) + res).astype(np.float32),
+            "srp_max": rng.random((n, 2)).astype(np.float32), "vad": np.ones(n)}
+
+
+def test_round_trip_gives_the_same_directions_and_metadata(cross3d_file):
+    original, path = cross3d_file
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a trained tracker does not warn
+        loaded = Cross3DTracker(weights=str(path))
+    assert loaded.resolution == (4, 8)  # taken from the file
+    nao = doabench.get_array("nao")
+    ep = _episode()
+    original.reset(nao)
+    loaded.reset(nao)
+    np.testing.assert_array_equal(original.track(ep), loaded.track(ep))
+    d = loaded.describe()
+    assert d["trained"] is True and d["weights_hash"] == W.sha256_file(path)
+    assert d["parameters"] == 526_372 and d["training"] == {"epochs": 80, "batch": 5}
+    assert d["trained_features"] == {"kinds": ["srp", "srp_max"], "window": 4096, "hop": 3072, "fs": 16000,
+                                     "delay_mode": "nearest"}
+    meta = W.read_metadata(path)
+    assert meta["model"] == "cross3d" and meta["resolution"] == "4x8" and meta["array"]["name"] == "nao"
+    assert meta["doabench_version"] == doabench.__version__ and meta["date"]
+
+
+def test_resolution_mismatch_is_a_config_error(cross3d_file):
+    _, path = cross3d_file
+    with pytest.raises(ConfigError, match="trained on 4x8 maps, not 8x16"):
+        Cross3DTracker("8x16", weights=str(path))
+
+
+def test_model_mismatch_is_a_config_error(cross3d_file):
+    _, path = cross3d_file
+    with pytest.raises(ConfigError, match="holds a 'cross3d' model, not 'max-cnn1d'"):
+        MaxCnn1dTracker(weights=str(path))
+
+
+def test_array_mismatch_is_a_config_error_at_reset(cross3d_file):
+    _, path = cross3d_file
+    tracker = Cross3DTracker(weights=str(path))
+    nao = doabench.get_array("nao")
+    tracker.reset(nao.with_positions(nao.positions + 0.002, "measured"))  # within 5 mm: fine
+    moved = nao.with_positions(nao.positions + np.array([0.01, 0.0, 0.0]), "moved")
+    with pytest.raises(ConfigError, match="differs by up to 10.0 mm"):
+        tracker.reset(moved)
+    three = doabench.MicArray("three", np.eye(3) * 0.05)
+    with pytest.raises(ConfigError, match="12 microphones"):
+        tracker.reset(three)
+
+
+def test_frame_and_delay_mismatch_are_config_errors(cross3d_file):
+    _, path = cross3d_file
+    with pytest.raises(ConfigError, match="frames"):
+        W.load_weights(path, frame_spec=doabench.FrameSpec(window=2048))
+    with pytest.raises(ConfigError, match="'nearest' SRP delays, not 'exact'"):
+        W.load_weights(path, delay_mode="exact")
+    state, meta = W.load_weights(path, model_name="cross3d", resolution=(4, 8),
+                                 frame_spec=doabench.FrameSpec(), delay_mode="nearest")
+    assert meta["parameters"] == 526_372 and all(isinstance(v, torch.Tensor) for v in state.values())
+
+
+def test_state_that_does_not_fit_the_model_is_a_config_error(cross3d_file):
+    _, path = cross3d_file
+    state, _ = W.load_weights(path)
+    with pytest.raises(ConfigError, match="shape"):
+        W.load_into(Cross3D(4, 16), state, path)  # same layers, wider 1D input
+    with pytest.raises(ConfigError, match="missing"):
+        W.load_into(Cross3D(4, 8), {k: v for k, v in state.items() if "hidden" not in k}, path)
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(NotFoundError):
+        W.read_metadata(tmp_path / "absent.safetensors")
+    junk = tmp_path / "junk.safetensors"
+    junk.write_bytes(b"not a safetensors file")
+    with pytest.raises(InputError, match="not a safetensors file"):
+        W.read_metadata(junk)
+    from safetensors.torch import save_file
+
+    bare = tmp_path / "bare.safetensors"
+    save_file({"w": torch.zeros(2)}, str(bare))
+    with pytest.raises(InputError, match="no doabench metadata"):
+        Cross3DTracker(weights=str(bare))
+    odd = tmp_path / "odd.safetensors"
+    save_file({"w": torch.zeros(2)}, str(odd), metadata={"doabench": json.dumps({"format": "other/9"})})
+    with pytest.raises(InputError, match="unknown metadata format"):
+        W.read_metadata(odd)
+
+
+def test_shipped_weights_are_found_and_set_the_default_resolution(tmp_path, monkeypatch):
+    monkeypatch.setattr(W, "SHIPPED_DIR", tmp_path)
+    with pytest.warns(UserWarning, match="trained: false"):
+        assert Cross3DTracker().resolution == (8, 16)  # nothing shipped: the documented default
+    _untrained(Cross3DTracker, "4x8", weights="random").save_weights(tmp_path / "cross3d-4x8.safetensors")
+    tracker = Cross3DTracker()
+    assert tracker.resolution == (4, 8) and tracker.trained
+    assert W.shipped_resolutions("cross3d") == [(4, 8)]
+    assert not _untrained(Cross3DTracker, "4x8", weights="random").trained  # weights=random overrides
