@@ -24,6 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--epoch-size", type=int, help="trajectories per epoch (default: the preset's)")
     p.add_argument("--cache-size", type=int, help="cached training trajectories (cpu preset)")
     p.add_argument("--val-trajectories", type=int, help="validation trajectories (default: the preset's)")
+    p.add_argument("--switch-epoch", type=int,
+                   help="epoch at which the curriculum's second phase starts (paper: 20; cpu: half the epochs)")
     p.add_argument("--seed", type=int, default=0, help="run seed (network init and item seeds)")
     p.add_argument("--workers", type=int, help="DataLoader worker processes (default: the preset's)")
     p.add_argument("--out", required=True, help="run folder: checkpoints, log.csv, loss.png")
@@ -44,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def build_recipe(args: argparse.Namespace):
+    from doabench.errors import ConfigError
     from doabench.training.recipes import get_recipe
 
     recipe = get_recipe(args.preset)
@@ -52,6 +55,16 @@ def build_recipe(args: argparse.Namespace):
                      ("val_trajectories", "val_trajectories"), ("workers", "num_workers")):
         if getattr(args, arg) is not None:
             changes[key] = getattr(args, arg)
+    if args.switch_epoch is not None:
+        from dataclasses import replace
+
+        if len(recipe.phases) < 2 or args.switch_epoch < 1:
+            raise ConfigError("--switch-epoch needs a two-phase recipe and an epoch >= 1")
+        changes["phases"] = (recipe.phases[0], replace(recipe.phases[1], start_epoch=args.switch_epoch))
+    elif args.preset == "cpu" and args.epochs is not None:
+        from dataclasses import replace
+
+        changes["phases"] = (recipe.phases[0], replace(recipe.phases[1], start_epoch=max(1, args.epochs // 2)))
     return recipe.replace(**changes)
 
 
