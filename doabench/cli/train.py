@@ -80,7 +80,7 @@ def main(args: argparse.Namespace) -> int:
     if args.export:
         from doabench.training.export import export_weights
 
-        path = export_weights(args.out, args.export, args.export_from)
+        path = export_weights(args.out, args.export, args.export_from, tracker_id=args.tracker)
         print(f"wrote {path}")
         return 0
     check_trainable(make_tracker(args.tracker, **options), args.tracker)  # fail fast, one line

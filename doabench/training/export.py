@@ -12,7 +12,7 @@ from doabench.training import checkpoint as ckpt
 from doabench.training.protocol import check_trainable
 
 
-def training_metadata(state: dict[str, Any], tracker: Any, which: str) -> dict[str, Any]:
+def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_id: str | None = None) -> dict[str, Any]:
     """What a weights file records about how it was trained (JSON-serialisable)."""
     import doabench
     from doabench.envs.registry import get_task_spec
@@ -21,7 +21,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str) -> dict[s
     history = state["history"]
     row = next((h for h in history if h["epoch"] == state["epoch"]), history[-1] if history else {})
     return {
-        "tracker": state["tracker"],
+        "tracker": tracker_id or state["tracker"],
         "resolution": None if tracker.resolution is None else "%dx%d" % tuple(tracker.resolution),
         "array": spec.array,
         "features": list(tracker.features),
@@ -43,18 +43,35 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str) -> dict[s
     }
 
 
-def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best", tracker: Any = None) -> Path:
-    """Load ``best.pt`` or ``checkpoint.pt`` of ``run_dir`` into the tracker and save its weights."""
+def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best", tracker: Any = None,
+                   tracker_id: str | None = None) -> Path:
+    """Load ``best.pt`` or ``checkpoint.pt`` of ``run_dir`` into the tracker and save its weights.
+
+    ``tracker_id`` (default: the id the run was trained with) builds the tracker when ``tracker``
+    is not given; its network must have the same parameter names and shapes.
+    """
     from doabench.trackers.registry import make_tracker
 
     if which not in ("best", "latest"):
         raise ConfigError(f"export which must be best or latest, got {which!r}")
     state = ckpt.load_checkpoint(Path(run_dir) / (ckpt.BEST if which == "best" else ckpt.LATEST))
-    tracker = tracker if tracker is not None else make_tracker(state["tracker"])
-    check_trainable(tracker, state["tracker"])
+    tracker_id = tracker_id or state["tracker"]
+    tracker = tracker if tracker is not None else make_tracker(tracker_id, weights="random") if _takes_weights(
+        tracker_id) else make_tracker(tracker_id)
+    check_trainable(tracker, tracker_id)
     tracker.network.load_state_dict(state["model"])
     tracker.network.eval()
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    tracker.save_weights(out_path, training_metadata(state, tracker, which))
+    tracker.save_weights(out_path, training_metadata(state, tracker, which, tracker_id))
     return out_path
+
+
+def _takes_weights(tracker_id: str) -> bool:
+    """True when the tracker's constructor accepts ``weights=`` (so shipped weights are not loaded first)."""
+    import inspect
+
+    from doabench.trackers.registry import resolve_tracker
+
+    cls, _, _ = resolve_tracker(tracker_id)
+    return "weights" in inspect.signature(cls.__init__).parameters

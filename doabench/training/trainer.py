@@ -86,6 +86,9 @@ class Trainer:
         torch.manual_seed(recipe.seed)  # network initialisation
         self.tracker = tracker if tracker is not None else make_tracker(options.tracker, **options.tracker_options)
         check_trainable(self.tracker, options.tracker)
+        if getattr(self.tracker, "trained", False) and self.saved is None:
+            log(f"note: {options.tracker} loaded trained weights and training starts from them "
+                "(pass --tracker-opt weights=random to train from scratch)")
         if recipe.t60 is None and "t60" in (defaults := training_defaults(self.tracker)):
             recipe = recipe.replace(t60=tuple(defaults["t60"]))
         self.recipe = recipe
