@@ -33,6 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--librispeech", help="LibriSpeech root holding train-clean-100 (default: $DOABENCH_LIBRISPEECH)")
     p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
     p.add_argument("--cache-root", default="runs/cache", help="folder of trajectory caches (default: runs/cache)")
+    p.add_argument("--dataset", metavar="FILE",
+                   help="train from a dataset file made by `doabench make-dataset` (stored features) instead")
     p.add_argument("--build-cache", action="store_true",
                    help="only simulate the missing validation and training cache items, then exit")
     p.add_argument("--min-cache", type=int, default=1,
@@ -89,7 +91,8 @@ def main(args: argparse.Namespace) -> int:
     opts = TrainOptions(tracker=args.tracker, out=Path(args.out), recipe=build_recipe(args), task=args.task,
                         librispeech=args.librispeech, cache_root=Path(args.cache_root), simulator=args.backend,
                         resume=args.resume, threads=args.threads, progress=not args.quiet,
-                        max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options)
+                        max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
+                        dataset=Path(args.dataset) if args.dataset else None)
     if args.build_cache:
         from doabench.envs.registry import get_task_spec
         from doabench.training.pipeline import ensure_cache

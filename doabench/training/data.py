@@ -121,6 +121,39 @@ class ValidationItems(Dataset):
         return noisy_item(item, snr, episode_seed(self.base_seed, self.NOISE_KEY, i), self.frame_spec)
 
 
-def collate(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
-    """Stack items into a batch; every value gains a leading ``B`` axis."""
-    return {k: torch.stack([it[k] for it in items]) for k in items[0]}
+class DatasetItems(Dataset):
+    """Epoch ``epoch``'s items from a dataset file made by ``doabench make-dataset``.
+
+    The file's episodes are served in a seeded per-epoch order (``episode_seed(base_seed, e)``);
+    their features are the stored ones (noise and SNR were fixed when the file was made, so the
+    curriculum's SNR does not apply). Items carry ``features`` instead of ``audio``.
+    """
+
+    def __init__(self, path, kinds: tuple[str, ...], resolution: tuple[int, int] | None, base_seed: int,
+                 epoch: int, n: int) -> None:
+        from doabench.datasets.torch_dataset import EpisodeDataset
+
+        res = None if resolution is None else "%dx%d" % tuple(resolution)
+        self.kinds = kinds
+        names = [f"{k}:{res}" if k in ("srp", "srp_max") and res else k for k in kinds]
+        self.dataset = EpisodeDataset(path, features=names)
+        self.names = names
+        order = np.random.default_rng(episode_seed(base_seed, epoch)).permutation(len(self.dataset))
+        self.order = [int(i) for i in order[: min(n, len(order))]]
+
+    def __len__(self) -> int:
+        return len(self.order)
+
+    def __getitem__(self, k: int) -> dict[str, Any]:
+        item = self.dataset[self.order[k]]
+        feats = {kind: item["features"][name] for kind, name in zip(self.kinds, self.names)}
+        feats["vad"] = item["vad"]
+        return {"features": feats, "truth": item["directions"], "vad": item["vad"]}
+
+
+def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
+    """Stack items into a batch; every value (and nested feature) gains a leading ``B`` axis."""
+    out: dict[str, Any] = {}
+    for k, v in items[0].items():
+        out[k] = collate([it[k] for it in items]) if isinstance(v, dict) else torch.stack([it[k] for it in items])
+    return out

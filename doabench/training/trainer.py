@@ -24,7 +24,7 @@ from doabench.errors import ConfigError, NotFoundError
 from doabench.results.files import atomic_path, write_json, write_text
 from doabench.training import checkpoint as ckpt
 from doabench.training.cache import TrajectoryCache
-from doabench.training.data import CachedItems, SimulatedItems, ValidationItems, collate
+from doabench.training.data import CachedItems, DatasetItems, SimulatedItems, ValidationItems, collate
 from doabench.training.pipeline import (DEFAULT_CACHE_ROOT, cache_folder, ensure_cache, scene_distribution,
                                         speech_for_split)
 from doabench.training.protocol import check_trainable, training_defaults
@@ -51,6 +51,7 @@ class TrainOptions:
     progress: bool = True
     max_epochs: int | None = None  # stop after this many epochs in this invocation
     min_cache: int = 1             # wait for at least this many cached training trajectories
+    dataset: Path | None = None    # train from a `doabench make-dataset` file instead
     tracker_options: dict[str, Any] = field(default_factory=dict)
 
 
@@ -147,6 +148,9 @@ class Trainer:
 
     def _epoch_items(self, epoch: int, snr: tuple[float, float]):
         r = self.recipe
+        if self.options.dataset is not None:
+            return DatasetItems(self.options.dataset, tuple(self.tracker.features), self.tracker.resolution,
+                                self.base_seed, epoch, r.trajectories_per_epoch), 0
         if r.data == "cache":
             cache = self._train_cache()
             n_cache = min(len(_contiguous(cache.available())), r.cache_size)
@@ -166,6 +170,8 @@ class Trainer:
     # -- one step, validation ------------------------------------------------------------------
     def network_input(self, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
         with torch.no_grad():
+            if "features" in batch:  # stored features (dataset file)
+                return self.tracker.network_input(dict(batch["features"]))
             feats = dict(self.feature_fn(batch["audio"], batch["sample_vad"]))
             return self.tracker.network_input(feats)
 
@@ -268,6 +274,7 @@ class Trainer:
                 "recipe": self.recipe.to_dict(), "frame": self.frame_spec.to_dict(),
                 "features": list(self.tracker.features),
                 "resolution": None if self.tracker.resolution is None else list(self.tracker.resolution),
+                "dataset": None if self.options.dataset is None else str(self.options.dataset),
                 "train_cache": None if self.train_cache_dir is None else str(self.train_cache_dir),
                 "threads": torch.get_num_threads(), "torch": torch.__version__}
 
