@@ -1,0 +1,17 @@
+"""doabench_baselines: Cross3D and the paper's learned baselines as doabench tracker plugins.
+
+Modules (docs/models.md describes the architectures and how they match Table I):
+
+* ``layers``    – spherical padding, causal convolutions with streaming caches
+* ``cross3d``   – Cross3D (paper IV-B)
+* ``cnn1d``     – ``gcc-cnn1d`` and ``max-cnn1d`` (paper V-A)
+* ``cnn2d``     – ``spec-cnn2d`` (paper V-A)
+* ``seldnet``   – SELDnet DOA-branch replica (paper V-A)
+* ``streaming`` – :class:`StreamingRunner`, one frame in, one direction out
+* ``weights``   – safetensors weight files with checked metadata
+* ``trackers``  – the registered trackers (importing it registers them; doabench finds them
+  through the ``doabench.trackers`` entry points)
+
+This package uses only doabench's public API (``doabench`` and ``doabench.errors``), as a
+third-party plugin would.
+"""

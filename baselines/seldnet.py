@@ -11,12 +11,13 @@ the NAO array 24 channels.
    SELDnet's reference implementation the two directions are merged by elementwise product.
 3. Fully connected 16 -> 256 + PReLU (one slope per unit), then fully connected 256 -> 3 + tanh.
 
-Table I gives 104,643 parameters, far fewer than SELDnet's defaults (64 filters, 128-unit GRUs, a
-128-unit dense layer: over 300 k parameters with 24 input channels), so the paper's replica was
+Table I gives 104,643 parameters, far fewer than SELDnet's defaults (64 filters, pooling 8/8/2,
+128-unit GRUs, a 128-unit dense layer: 501,315 parameters with these inputs), so the replica was
 scaled down; the text fixes only the layer types. This configuration keeps SELDnet's
-convolutional block unchanged and gives the table's count exactly: 88,128 (convolutions + BN)
-+ 11,136 (GRUs, PyTorch's two bias vectors per gate) + 4,352 + 256 + 771 (dense layers and slopes).
-The solution is not unique; docs/models.md lists the alternatives that also give 104,643.
+convolutional layers (only the last pooling is 4 instead of 2, leaving one bin) and gives the
+table's count exactly: 88,128 (convolutions + BN) + 11,136 (GRUs, PyTorch's two bias vectors
+per gate) + 4,352 + 256 + 771 (dense layers and slopes). The solution is not unique;
+docs/models.md lists other configurations that also give 104,643.
 """
 from __future__ import annotations
 

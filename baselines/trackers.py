@@ -178,14 +178,39 @@ class NeuralTracker(doabench.Tracker):
         )
         return d
 
-    def save_weights(self, path: str | Path, training: Mapping[str, Any] | None = None,
-                     delay_mode: str | None = "nearest") -> Path:
-        """Write this tracker's model to a weight file with the metadata it needs to be reloaded."""
+    def save_weights(self, path: str | Path, metadata: Mapping[str, Any] | None = None) -> Path:
+        """Write the network to a weight file (training protocol: ``save_weights(path, metadata)``).
+
+        The file's metadata is built here (model, resolution, array positions, frames, feature
+        kinds, parameter count, version, date); from ``metadata`` it takes ``training`` (the recipe
+        summary), ``feature_settings.delays`` (SRP delay mode, default ``nearest``) and ``array``
+        (the training array's name or file, whose positions are recorded), and keeps its other
+        keys as they are. The keys built here win over the caller's.
+        """
+        extra = dict(metadata or {})
+        training = extra.pop("training", None)
+        delays = (extra.get("feature_settings") or {}).get("delays", extra.pop("delay_mode", "nearest"))
+        array = self._array
+        if isinstance(extra.get("array"), str):
+            array = doabench.get_array(extra["array"])
+            self.check_array_fits(array)
         config = {"resolution": resolution_text(self._resolution)} if self.uses_resolution else {}
-        meta = make_metadata(self.model_name, self.model, array=self._array, frame_spec=self.frame_spec,
-                             features=self.features, resolution=self._resolution, delay_mode=delay_mode,
+        meta = make_metadata(self.model_name, self.model, array=array, frame_spec=self.frame_spec,
+                             features=self.features, resolution=self._resolution, delay_mode=delays,
                              model_config=config, training=training)
+        for key, value in extra.items():
+            meta.setdefault(key, value)
         return save_weights(path, self.model, meta)
+
+    # -- training protocol (doabench.training) -----------------------------------------------------
+    @property
+    def network(self) -> nn.Module:
+        """The torch module that is trained: ``network(x)`` -> ``(batch, frames, 3)``."""
+        return self.model
+
+    def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """Batched features ``{kind: (batch, frames, ...)}`` -> the network's input tensor."""
+        raise NotImplementedError
 
     # -- running --------------------------------------------------------------------------------------
     def reset(self, array: doabench.MicArray, **context: Any) -> None:
@@ -205,14 +230,14 @@ class NeuralTracker(doabench.Tracker):
         """Raise ConfigError when the episode's array cannot feed the model's input layer."""
 
     def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
-        """One observation -> the model's input frame ``(1, *frame_shape)``."""
-        raise NotImplementedError
+        """One observation -> the model's input frame ``(1, *frame_shape)``: the episode path
+        with one frame, so both paths build identical inputs."""
+        x = self.network_input({k: self._tensor(observation[k])[None, None] for k in self.features})
+        return x[:, :, 0]  # drop the time axis (axis 2 in every model)
 
     def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
-        """A whole episode -> the model's input ``(1, C, frames, *space)``."""
-        n = len(episode["vad"])
-        frames = [self.frame_input({k: v[t] for k, v in episode.items()}) for t in range(n)]
-        return torch.stack(frames, dim=2)
+        """A whole episode ``{kind: (frames, ...)}`` -> the network's input with batch 1."""
+        return self.network_input({k: self._tensor(episode[k])[None] for k in self.features})
 
     def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         if self._runner is None:
@@ -263,20 +288,13 @@ class Cross3DTracker(NeuralTracker):
     def build_model(self) -> nn.Module:
         return Cross3D(*self._resolution)
 
-    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
-        srp = observation["srp"]
-        if tuple(srp.shape) != self._resolution:
+    def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        srp = features["srp"]  # (B, T, n_theta, n_phi)
+        if tuple(srp.shape[2:]) != self._resolution:
             raise ConfigError(f"tracker {self.name!r} expects {resolution_text(self._resolution)} maps, "
-                              f"got {'x'.join(map(str, srp.shape))}")
-        return cross3d_input(self._tensor(srp), self._tensor(observation["srp_max"]))[None]
-
-    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
-        srp = self._tensor(episode["srp"])  # (T, n_theta, n_phi)
-        if tuple(srp.shape[1:]) != self._resolution:
-            raise ConfigError(f"tracker {self.name!r} expects {resolution_text(self._resolution)} maps, "
-                              f"got {'x'.join(map(str, srp.shape[1:]))}")
-        x = cross3d_input(srp, self._tensor(episode["srp_max"]))  # (T, 3, n_theta, n_phi)
-        return x.transpose(0, 1)[None]
+                              f"got {'x'.join(map(str, srp.shape[2:]))}")
+        x = cross3d_input(srp, features["srp_max"])  # (B, T, 3, n_theta, n_phi)
+        return x.transpose(1, 2)
 
 
 @doabench.register_tracker("max-cnn1d")
@@ -293,11 +311,8 @@ class MaxCnn1dTracker(NeuralTracker):
     def build_model(self) -> nn.Module:
         return CausalCnn1d(2)
 
-    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
-        return self._tensor(observation["srp_max"]).reshape(1, 2)
-
-    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
-        return self._tensor(episode["srp_max"]).reshape(-1, 2).T[None]
+    def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        return features["srp_max"].transpose(1, 2)  # (B, T, 2) -> (B, 2, T)
 
 
 def _n_lags(array: doabench.MicArray, fs: int) -> int:
@@ -322,17 +337,12 @@ class GccCnn1dTracker(NeuralTracker):
                               f"({self._gcc_shape[0]} pairs x {self._gcc_shape[1]} lags); array {array.name!r} "
                               f"gives {shape[0]} x {shape[1]}: pass --tracker-opt array=NAME_OR_FILE")
 
-    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
-        gcc = observation["gcc"]
-        if tuple(gcc.shape) != self._gcc_shape:
-            raise ConfigError(f"tracker {self.name!r} expects gcc of shape {self._gcc_shape}, got {tuple(gcc.shape)}")
-        return self._tensor(gcc).reshape(1, -1)  # pair-major, lag-minor
-
-    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
-        gcc = self._tensor(episode["gcc"])
-        if tuple(gcc.shape[1:]) != self._gcc_shape:
-            raise ConfigError(f"tracker {self.name!r} expects gcc of shape {self._gcc_shape}, got {tuple(gcc.shape[1:])}")
-        return gcc.reshape(gcc.shape[0], -1).T[None]
+    def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        gcc = features["gcc"]  # (B, T, n_pairs, n_lags)
+        if tuple(gcc.shape[2:]) != self._gcc_shape:
+            raise ConfigError(f"tracker {self.name!r} expects gcc of shape {self._gcc_shape}, "
+                              f"got {tuple(gcc.shape[2:])}")
+        return gcc.flatten(2).transpose(1, 2)  # (B, n_pairs * n_lags, T), pair-major
 
 
 class _SpectrogramTracker(NeuralTracker):
@@ -347,19 +357,12 @@ class _SpectrogramTracker(NeuralTracker):
                               f"(array {self._array.name!r}); array {array.name!r} has {array.n_mics}: "
                               "pass --tracker-opt array=NAME_OR_FILE")
 
-    def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
-        s = observation["spectrogram"]
-        if tuple(s.shape) != self._spec_shape():
+    def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        s = features["spectrogram"]  # (B, T, 2 n_mics, bins)
+        if tuple(s.shape[2:]) != self._spec_shape():
             raise ConfigError(f"tracker {self.name!r} expects spectrograms of shape {self._spec_shape()}, "
-                              f"got {tuple(s.shape)}")
-        return self._tensor(s)[None]
-
-    def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
-        s = self._tensor(episode["spectrogram"])  # (T, 2 n_mics, bins)
-        if tuple(s.shape[1:]) != self._spec_shape():
-            raise ConfigError(f"tracker {self.name!r} expects spectrograms of shape {self._spec_shape()}, "
-                              f"got {tuple(s.shape[1:])}")
-        return s.transpose(0, 1)[None]
+                              f"got {tuple(s.shape[2:])}")
+        return s.transpose(1, 2)  # (B, 2 n_mics, T, bins)
 
 
 @doabench.register_tracker("spec-cnn2d")

@@ -126,7 +126,8 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     except json.JSONDecodeError:
         raise InputError(f"weights file {path}: metadata is not valid JSON") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise InputError(f"weights file {path}: unknown metadata format {meta.get('format') if isinstance(meta, dict) else meta!r}")
+        found = meta.get("format") if isinstance(meta, dict) else meta
+        raise InputError(f"weights file {path}: unknown metadata format {found!r}")
     return meta
 
 

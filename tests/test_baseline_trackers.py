@@ -168,3 +168,21 @@ def test_runs_a_task_end_to_end():
                                    tracker_options={"weights": "random"})
         assert results["tracker"]["trained"] is False
         assert np.isfinite(results["summary"]["rmsae_all"])
+
+
+@pytest.mark.parametrize("text", ["cross3d:4x8", "gcc-cnn1d", "max-cnn1d", "spec-cnn2d", "seldnet"])
+def test_training_protocol(text, tmp_path):
+    """What `doabench train` uses: network, network_input on batched features, save_weights."""
+    from doabench.training.protocol import check_trainable
+
+    tracker = check_trainable(_make(text), text)
+    ep = _episode(tracker, 6)
+    batch = {k: torch.as_tensor(np.stack([v, v[::-1].copy()])) for k, v in ep.items()}  # (2, 6, ...)
+    y = tracker.network(tracker.network_input(batch))
+    assert y.shape == (2, 6, 3)
+    path = tracker.save_weights(tmp_path / "w.safetensors", {"array": "nao", "training": {"epochs_completed": 1},
+                                                              "feature_settings": {"delays": "nearest"}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        loaded = doabench.make_tracker(text, weights=str(path))
+    assert loaded.describe()["training"] == {"epochs_completed": 1}

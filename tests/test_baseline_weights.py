@@ -32,7 +32,8 @@ def _untrained(cls, *args, **kwargs):
 @pytest.fixture
 def cross3d_file(tmp_path):
     tracker = _untrained(Cross3DTracker, "4x8", weights="random", seed=3)
-    path = tracker.save_weights(tmp_path / "cross3d-4x8.safetensors", training={"epochs": 80, "batch": 5})
+    path = tracker.save_weights(tmp_path / "cross3d-4x8.safetensors",
+                                {"training": {"epochs": 80, "batch": 5}, "torch_version": torch.__version__})
     return tracker, path
 
 
@@ -61,6 +62,7 @@ def test_round_trip_gives_the_same_directions_and_metadata(cross3d_file):
     meta = W.read_metadata(path)
     assert meta["model"] == "cross3d" and meta["resolution"] == "4x8" and meta["array"]["name"] == "nao"
     assert meta["doabench_version"] == doabench.__version__ and meta["date"]
+    assert meta["torch_version"] == torch.__version__  # caller keys are kept
 
 
 def test_resolution_mismatch_is_a_config_error(cross3d_file):
