@@ -39,7 +39,7 @@ from .weights import (check_array, check_metadata, load_into, load_weights, make
                       read_metadata, resolution_text, save_weights, sha256_file, shipped_resolutions, shipped_weights)
 
 _INITIAL_DIRECTION = np.array([1.0, 0.0, 0.0])  # until the network gives a usable direction
-_RANDOM = ("random", "none", "")
+_RANDOM = ("random", "none", "false", "")  # weights=random (or none/false) forces random init
 _TRACK_CHUNK = 64  # frames per forward pass in track(): bounds memory on long episodes
 
 
