@@ -131,9 +131,8 @@ class GCCPHAT:
                 f"{frame_spec.window}-sample window"
             )
         self.pairs = torch.from_numpy(self.array.pairs)
-        lags = torch.arange(-self.max_lag, self.max_lag + 1)
-        table = F.lag_dft_table(frame_spec.window, lags) if len(lags) <= F._DFT_MAX_LAGS else None
-        self._tables = _DeviceCache(pairs=self.pairs, table=table)
+        index = F.gram_lag_index(self.pairs, self.array.n_mics, self.max_lag)
+        self._tables = _DeviceCache(pairs=self.pairs, index=index)
 
     @property
     def n_lags(self) -> int:
@@ -142,7 +141,7 @@ class GCCPHAT:
     def from_phat(self, W: torch.Tensor) -> torch.Tensor:
         """Unmasked GCC from whitened spectra ``(batch, frames, n_mics, n_bins)``."""
         t = self._tables.on(W.device)
-        return F.gcc_from_phat(W, t["pairs"], self.max_lag, self.frame_spec.window, t["table"])
+        return F.gcc_from_phat(W, t["pairs"], self.max_lag, self.frame_spec.window, t["index"])
 
     def __call__(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
         X = F.stft_frames(audio, self.frame_spec.window, self.frame_spec.hop)
@@ -185,7 +184,7 @@ class SRPPHAT:
         if mode == "nearest":
             index = torch.from_numpy(F.nearest_lag_index(tau, self.array.pairs, self.gcc.max_lag))
         else:
-            nbytes = F.n_bins(frame_spec.window) * tau.size * 8
+            nbytes = F.n_bins(frame_spec.window) * tau.size * 16
             if nbytes <= _STEER_CACHE_BYTES:
                 steer = F.steering(self.tau, frame_spec.window)
         self._tables = _DeviceCache(index=index, steer=steer, tau=self.tau)
