@@ -34,7 +34,8 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
             "task": spec.id, "task_version": spec.version, "recipe": state["recipe"],
             "checkpoint": which, "epochs_completed": state["epoch"],
             "trajectories_seen": state["trajectories_seen"], "compute_s": round(float(state["compute_s"]), 1),
-            "hardware": f"CPU ({platform.machine()}), {torch.get_num_threads()} threads",
+            "hardware": f"CPU ({platform.machine()}), {state.get('threads', '?')} torch threads",
+            "cached_trajectories": row.get("n_cache") or None,
             "loss": "MSE between the output and the true unit vector of every frame",
             "optimizer": "Adam",
             "validation": {k: row.get(k) for k in ("val_loss", "val_rmsae_all", "val_rmsae_nonsilent")},
@@ -55,6 +56,11 @@ def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best
     if which not in ("best", "latest"):
         raise ConfigError(f"export which must be best or latest, got {which!r}")
     state = ckpt.load_checkpoint(Path(run_dir) / (ckpt.BEST if which == "best" else ckpt.LATEST))
+    config = Path(run_dir) / "config.json"
+    if "threads" not in state and config.exists():  # runs started before checkpoints recorded it
+        import json
+
+        state["threads"] = json.loads(config.read_text()).get("threads")
     tracker_id = tracker_id or state["tracker"]
     tracker = tracker if tracker is not None else make_tracker(tracker_id, weights="random") if _takes_weights(
         tracker_id) else make_tracker(tracker_id)

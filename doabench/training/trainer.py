@@ -255,7 +255,8 @@ class Trainer:
             history.append(row)
             state = {"epoch": epoch + 1, "model": self.network.state_dict(), "optimizer": self.optimizer.state_dict(),
                      "rng": ckpt.rng_state(), "recipe": self.recipe.to_dict(), "tracker": self.options.tracker,
-                     "task": self.spec.id, "history": history, "compute_s": compute_s, "trajectories_seen": seen}
+                     "task": self.spec.id, "history": history, "compute_s": compute_s, "trajectories_seen": seen,
+                     "threads": torch.get_num_threads()}
             score = metrics["val_rmsae_all"]
             if score < best:
                 best = score
