@@ -22,11 +22,11 @@ L = FS.window + FS.hop * (FRAMES - 1)
 
 
 class TinyNet(torch.nn.Module):
-    """Causal conv over frames: ``(B, T, M)`` -> ``(B, T, 3)``."""
+    """Causal conv over frames: ``(B, T, C)`` -> ``(B, T, 3)``."""
 
-    def __init__(self) -> None:
+    def __init__(self, channels: int = M) -> None:
         super().__init__()
-        self.conv = torch.nn.Conv1d(M, 3, 3)
+        self.conv = torch.nn.Conv1d(channels, 3, 3)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = self.conv(torch.nn.functional.pad(x.transpose(1, 2), (2, 0)))
@@ -65,14 +65,14 @@ def energy_features(audio: torch.Tensor, vad: torch.Tensor) -> dict[str, torch.T
     return {"energy": torch.log(frames.pow(2).mean(-1) + 1e-8).transpose(1, 2)}
 
 
-def make_cache(folder: Path, n: int, seed: int) -> Path:
+def make_cache(folder: Path, n: int, seed: int, mics: int = M, length: int = L) -> Path:
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True)
     (folder / "manifest.json").write_text(json.dumps({"format": 1, "synthetic": True}))
     for i in range(n):
         write_item(folder / f"{i:05d}.npz", {
-            "audio": (rng.standard_normal((M, L)) * rng.uniform(0.2, 1.0, (M, 1))).astype(np.float16),
-            "scale": np.float64(1.0), "signal_power": np.float64(0.3), "vad": rng.random(L) < 0.9,
+            "audio": (rng.standard_normal((mics, length)) * rng.uniform(0.2, 1.0, (mics, 1))).astype(np.float16),
+            "scale": np.float64(1.0), "signal_power": np.float64(0.3), "vad": rng.random(length) < 0.9,
             "trajectory": rng.uniform(1, 3, (3, 3)), "array_position": np.array([2.0, 2.0, 1.0]),
             "snr_db": np.float64(rng.uniform(5, 30)), "t60": np.float64(0.5), "seed": np.int64(i)})
     return folder
@@ -196,3 +196,47 @@ def test_export_writes_weights_with_training_metadata(tmp_path, caches):
         meta = json.loads(f.metadata()["doabench"])
     assert meta["training"]["epochs_completed"] == 1 and meta["training"]["trajectories_seen"] == 4
     assert meta["doabench_version"] == doabench.__version__
+
+
+class MaxTracker(TinyTracker):
+    """Reads the stored ``srp_max`` of 4x8 maps, like max-cnn1d."""
+
+    features = ("srp_max",)
+
+    def __init__(self, spec=None, **options):
+        super().__init__(spec, **options)
+        self.network = TinyNet(2)
+
+    @property
+    def resolution(self):
+        return (4, 8)
+
+    @property
+    def frame_spec(self):
+        return FrameSpec()
+
+    def network_input(self, features):
+        return features["srp_max"]  # (B, T, 2)
+
+
+def test_training_from_a_dataset_file(tmp_path):
+    from doabench.datasets import make_dataset
+
+    (tmp_path / "t.toml").write_text(
+        'id = "train-ds-test"\nversion = 0\nkind = "simulated"\nepisodes = 3\nbase_seed = 5\n[speech]\n'
+        'corpus = "embedded"\n[scene]\nduration_s = 1.0\nn_points = 4\nt60 = [0.2, 0.3]\nroom_max = [5.0, 5.0, 3.0]\n')
+    doabench.register_task(tmp_path / "t.toml")
+    make_dataset("train-ds-test", tmp_path / "d.h5", features="srp:4x8", progress=False)
+    val = make_cache(tmp_path / "val", 2, 3, mics=2, length=16000)
+    frames = FrameSpec()
+
+    def max_like(audio, vad):  # validation features of the right shape from the cached audio
+        e = audio.unfold(-1, frames.window, frames.hop).pow(2).mean(-1).transpose(1, 2)  # (B, T, 2)
+        return {"srp_max": e / (e.amax(-1, keepdim=True) + 1e-9)}
+
+    opts = TrainOptions(tracker="max", out=tmp_path / "run", recipe=tiny_recipe(trajectories_per_epoch=3),
+                        task="train-ds-test", progress=False, dataset=tmp_path / "d.h5")
+    torch.manual_seed(0)
+    history = Trainer(opts, tracker=MaxTracker(), feature_fn=max_like, val_cache=val, log=lambda m: None).run()
+    assert [h["trajectories_seen"] for h in history] == [3, 6]
+    assert all(np.isfinite(h["train_loss"]) for h in history)
