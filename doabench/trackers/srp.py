@@ -43,8 +43,9 @@ class _SrpGridTracker(Tracker):
 
 @register_tracker("srp-max")
 class SrpMaxTracker(_SrpGridTracker):
-    """Argmax of each SRP-PHAT map (no tracking). Silent frames (zeroed maps) carry no
-    information, so the previous estimate is held there."""
+    """Argmax of each SRP-PHAT map (no tracking); holds the last estimate in silent frames.
+
+    Silent frames have zeroed maps and carry no information, so the previous estimate is held."""
 
     def reset(self, array: MicArray, **context: Any) -> None:
         super().reset(array, **context)
