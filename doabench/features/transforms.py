@@ -184,7 +184,7 @@ class SRPPHAT:
         if mode == "nearest":
             index = torch.from_numpy(F.nearest_lag_index(tau, self.array.pairs, self.gcc.max_lag))
         else:
-            nbytes = F.n_bins(frame_spec.window) * tau.size * 16
+            nbytes = F.n_bins(frame_spec.window) * tau.size * 8
             if nbytes <= _STEER_CACHE_BYTES:
                 steer = F.steering(self.tau, frame_spec.window)
         self._tables = _DeviceCache(index=index, steer=steer, tau=self.tau)
