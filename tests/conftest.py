@@ -8,6 +8,8 @@ SHARED_LIBRISPEECH = ROOT.parent / "shared" / "data" / "LibriSpeech"
 
 # Short scenes keep environment tests fast; the scene rate of 156 points per 20 s is kept.
 QUICK_SCENE = {"duration_s": 3.0, "n_points": 24}
+# The shortest scenes that still give several frames, for checks run on every task.
+TINY_SCENE = {"duration_s": 1.5, "n_points": 12}
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from doabench.envs.env import DoaEnv
 from doabench.errors import TrackerError
 from doabench.runner import run_task
 
-from conftest import QUICK_SCENE, ROOT
+from conftest import QUICK_SCENE, ROOT, TINY_SCENE
 
 
 def _sim_tasks():
@@ -24,7 +24,8 @@ def _sim_tasks():
 @pytest.mark.parametrize("task_id", _sim_tasks())
 def test_check_env_passes_for_every_simulated_task(task_id, librispeech_root):
     env = gymnasium.make(doabench.get_task_spec(task_id).gym_id, features=("srp", "srp_max", "gcc"),
-                         resolution=(4, 8), librispeech=str(librispeech_root), scene_overrides=QUICK_SCENE)
+                         resolution=(4, 8), librispeech=str(librispeech_root), scene_overrides=TINY_SCENE,
+                         cache_size=8)
     check_env(env.unwrapped, skip_render_check=True)
 
 
