@@ -121,3 +121,19 @@ def test_srp_max_sanity_bound_on_low_reverb_cell(librispeech_root):
     res = run_task("srp-max:32x64", "sim-t60-0.3-snr-30", episodes=2, progress=False,
                    librispeech=str(librispeech_root))
     assert res["summary"]["rmsae_nonsilent"] < 15.0, res["summary"]
+
+
+@pytest.fixture(scope="module")
+def locata_fixture(tmp_path_factory):
+    from doabench.locata.fixture import write_fixture
+
+    root = tmp_path_factory.mktemp("locata")
+    write_fixture(root, tasks=(1, 3, 5), duration_s=2.0, simulator="freefield", seed=1)
+    return root
+
+
+@pytest.mark.parametrize("task_id", [t for t, s in doabench.available_tasks().items() if s.kind == "locata"])
+def test_check_env_passes_for_every_locata_task(task_id, locata_fixture):
+    env = gymnasium.make(doabench.get_task_spec(task_id).gym_id, features=("srp", "srp_max"), resolution=(4, 8),
+                         locata_root=str(locata_fixture))
+    check_env(env.unwrapped, skip_render_check=True)
