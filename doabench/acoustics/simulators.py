@@ -19,6 +19,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 import torch
+from scipy import fft as scipy_fft
 from scipy.fft import next_fast_len
 
 from doabench.acoustics import rir as engine
@@ -108,10 +109,34 @@ def segment_bounds(n_samples: int, n_points: int) -> np.ndarray:
     return (np.arange(n_points + 1, dtype=np.int64) * n_samples) // n_points
 
 
-def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor) -> torch.Tensor:
+def _rfft(x: torch.Tensor, n: int) -> torch.Tensor:
+    # On CPU, scipy's pocketfft is about twice as fast as torch's FFT here (MKL on AMD CPUs).
+    if x.device.type == "cpu":
+        return torch.from_numpy(scipy_fft.rfft(x.numpy(), n, workers=torch.get_num_threads()))
+    return torch.fft.rfft(x, n)
+
+
+def _irfft(x: torch.Tensor, n: int) -> torch.Tensor:
+    if x.device.type == "cpu":
+        return torch.from_numpy(scipy_fft.irfft(x.numpy(), n, workers=torch.get_num_threads()))
+    return torch.fft.irfft(x, n)
+
+
+def trajectory_fft_size(n_samples: int, n_points: int, n_taps: int) -> int:
+    """FFT length :func:`convolve_trajectory` uses for these sizes."""
+    bounds = segment_bounds(n_samples, n_points)
+    hop = n_samples // n_points
+    if hop == 0:
+        return next_fast_len(n_taps, real=True)
+    frame = int((bounds[:-1] - np.arange(n_points) * hop + np.diff(bounds)).max())
+    return next_fast_len(frame + n_taps - 1, real=True)
+
+
+def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor, n_taps: int | None = None) -> torch.Tensor:
     """Moving-source convolution, ``(M, L)`` float32 on ``rirs``' device.
 
-    ``rirs`` ``(S, M, N)``, ``signal`` ``(L,)``. Segment ``i`` of the signal (:func:`segment_bounds`)
+    ``rirs`` ``(S, M, N)``, ``signal`` ``(L,)``. ``n_taps``: the RIRs' true length when ``rirs``
+    is zero-padded beyond it (to :func:`trajectory_fft_size`, which saves a padded copy). Segment ``i`` of the signal (:func:`segment_bounds`)
     is FFT-convolved with ``rirs[i]`` and added at its start sample; the output keeps the first
     ``L`` samples. Batched over points and mics, chunked over points to bound memory.
 
@@ -120,7 +145,8 @@ def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor) -> torch.Tenso
     the uniform ``hop`` grid, so the overlap-add is a few dense block additions (no index
     tensors, deterministic on every device).
     """
-    S, M, N = rirs.shape
+    S, M, width = rirs.shape
+    N = width if n_taps is None else int(n_taps)
     L = signal.shape[-1]
     device = rirs.device
     signal = signal.to(device=device, dtype=torch.float32)
@@ -128,10 +154,10 @@ def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor) -> torch.Tenso
     hop = L // S
     if hop == 0:  # more points than samples: only the points that own a sample matter
         keep = np.flatnonzero(np.diff(bounds) > 0)
-        return convolve_trajectory(rirs[torch.as_tensor(keep, device=device)], signal)
+        return convolve_trajectory(rirs[torch.as_tensor(keep, device=device)], signal, N)
     shift = bounds[:-1] - np.arange(S) * hop
     frame = int((shift + np.diff(bounds)).max())  # frame samples holding signal
-    nfft = next_fast_len(frame + N - 1, real=True)
+    nfft = trajectory_fft_size(L, S, N)
     col = torch.arange(frame, device=device)[None] - torch.as_tensor(shift, device=device)[:, None]
     seg_len = torch.as_tensor(np.diff(bounds), device=device)[:, None]
     src_idx = torch.as_tensor(bounds[:-1], device=device)[:, None] + col
@@ -143,9 +169,10 @@ def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor) -> torch.Tenso
     step = max(1, _OLA_CHUNK_ELEMENTS // (M * nfft))
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
-        spec = torch.fft.rfft(rirs[p0:p1].to(torch.float32), nfft)
-        spec *= torch.fft.rfft(frames[p0:p1], nfft)[:, None]
-        y = torch.fft.irfft(spec, nfft).transpose(0, 1)  # (M, P, nfft) view
+        h = rirs[p0:p1] if width == nfft else rirs[p0:p1, :, :N]
+        spec = _rfft(h.to(torch.float32), nfft)
+        spec *= _rfft(frames[p0:p1], nfft)[:, None]
+        y = _irfft(spec, nfft).transpose(0, 1)  # (M, P, nfft) view
         for k in range(n_hops):  # a handful of block adds, each over all points and mics
             a, b = k * hop, min((k + 1) * hop, nfft)
             out[:, p0 + k : p1 + k, : b - a] += y[..., a:b]
@@ -222,10 +249,23 @@ class BuiltinSimulator(_TorchBackend):
             "hpf": "none",
         }
 
-    def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
+    def rirs_tensor(
+        self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator, width: int | None = None
+    ) -> torch.Tensor:
         src = torch.tensor(sources, device=self.device)
         mic = torch.tensor(mics, device=self.device)
-        return engine.image_source_rirs(room, src, mic, fs, generator)
+        return engine.image_source_rirs(room, src, mic, fs, generator, width)
+
+    def simulate(self, room: Room, sources, mics, signal, fs: int, *, seed=None) -> np.ndarray:
+        """Signals ``(M, L)`` float32 of ``signal`` ``(L,)`` moving along ``sources`` ``(S, 3)``;
+        equals :func:`convolve_trajectory` of :meth:`rirs` with the same seed."""
+        src, mic, fs = prepare_geometry(room, sources, mics, fs)
+        x = _signal(signal)
+        gen = engine.make_generator(seed, self.device)
+        layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mic), fs)
+        nfft = trajectory_fft_size(len(x), len(src), layout.n_taps)
+        h = self.rirs_tensor(room, src, mic, fs, gen, width=nfft)  # zero-padded: no copy in the FFT
+        return convolve_trajectory(h, torch.as_tensor(x, device=self.device), layout.n_taps).cpu().numpy()
 
 
 _PRA_WALLS = ("west", "east", "south", "north", "floor", "ceiling")  # = x0, x1, y0, y1, z0, z1
@@ -324,9 +364,10 @@ class PyroomacousticsSimulator(_TorchBackend):
         delays = engine.direct_delays(src, mic, fs)
         layout = engine.rir_layout(room, float(delays.max()), fs)
         early = self.early_part(room, sources, mics, fs, layout)
-        out = torch.zeros(len(sources), len(mics), layout.n_taps, dtype=torch.float32, device=self.device)
+        out = torch.empty(len(sources), len(mics), layout.n_taps, dtype=torch.float32, device=self.device)
         out[..., : layout.n_early] = torch.as_tensor(early, device=self.device)
-        return engine.add_diffuse_tail_(out, room, fs, layout, delays, generator)
+        noise = engine.draw_tail_noise(len(sources), len(mics), layout, generator) if room.t60 > 0 else None
+        return engine.write_diffuse_tail_(out, room, fs, layout, delays, noise)
 
 
 GPURIR_INSTALL = (
