@@ -108,7 +108,7 @@ def test_resume_continues_exactly(tmp_path, caches):
     straight.run()
     first = make_trainer(tmp_path / "b", caches, max_epochs=1)
     assert len(first.run()) == 1
-    resumed = make_trainer(tmp_path / "b", caches, resume=True)
+    resumed = make_trainer(tmp_path / "b", caches, tiny_recipe(epochs=99), resume=True)  # keeps the run's 2
     history = resumed.run()
     assert [h["epoch"] for h in history] == [1, 2]
     for k, v in straight.network.state_dict().items():

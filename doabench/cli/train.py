@@ -92,7 +92,7 @@ def main(args: argparse.Namespace) -> int:
                         librispeech=args.librispeech, cache_root=Path(args.cache_root), simulator=args.backend,
                         resume=args.resume, threads=args.threads, progress=not args.quiet,
                         max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
-                        dataset=Path(args.dataset) if args.dataset else None)
+                        dataset=Path(args.dataset) if args.dataset else None, epochs=args.epochs)
     if args.build_cache:
         from doabench.envs.registry import get_task_spec
         from doabench.training.pipeline import ensure_cache

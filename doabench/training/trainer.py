@@ -52,6 +52,7 @@ class TrainOptions:
     max_epochs: int | None = None  # stop after this many epochs in this invocation
     min_cache: int = 1             # wait for at least this many cached training trajectories
     dataset: Path | None = None    # train from a `doabench make-dataset` file instead
+    epochs: int | None = None      # on --resume: a new epoch count (None keeps the run's)
     tracker_options: dict[str, Any] = field(default_factory=dict)
 
 
@@ -83,7 +84,9 @@ class Trainer:
         self.saved = self._load_saved()
         recipe = options.recipe
         if self.saved is not None:  # the run keeps its recipe; only the epoch count may change
-            recipe = Recipe.from_dict(self.saved["recipe"]).replace(epochs=options.recipe.epochs)
+            recipe = Recipe.from_dict(self.saved["recipe"])
+            if options.epochs is not None:
+                recipe = recipe.replace(epochs=options.epochs)
         torch.manual_seed(recipe.seed)  # network initialisation
         self.tracker = tracker if tracker is not None else make_tracker(options.tracker, **options.tracker_options)
         check_trainable(self.tracker, options.tracker)
