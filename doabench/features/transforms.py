@@ -270,7 +270,7 @@ class FeatureExtractor:
     @property
     def min_samples(self) -> int:
         """Shortest recording that yields at least one frame of every requested kind."""
-        windows = [self.frame_spec.window]
+        windows = [self.frame_spec.window] if self._main_kinds or not self.separate_spectrogram_grid else []
         if "spectrogram" in self.kinds:
             windows.append(self.spectrogram_frame_spec.window)
         return max(windows)
