@@ -114,12 +114,39 @@ def bootstrap_ci(per_frame: Sequence[tuple[np.ndarray, np.ndarray]], statistic: 
         n = np.array([np.sum(v) for _, v in per_frame], float)
     else:
         raise ValueError(f"bootstrap_ci supports rmsae_all and rmsae_nonsilent, not {statistic!r}")
+    return bootstrap_ci_from_sums(sq, n, n_boot, level, seed)
+
+
+def bootstrap_ci_from_sums(sum_sq: np.ndarray, counts: np.ndarray, n_boot: int = 1000, level: float = 0.95,
+                           seed: int = 0) -> tuple[float, float]:
+    """Bootstrap CI of a pooled RMS from per-episode sums of squared errors and frame counts."""
+    sq, n = np.asarray(sum_sq, float), np.asarray(counts, float)
+    if sq.size == 0:
+        return float("nan"), float("nan")
     rng = np.random.default_rng(seed)
-    idx = rng.integers(0, len(per_frame), size=(n_boot, len(per_frame)))
+    idx = rng.integers(0, sq.size, size=(n_boot, sq.size))
     with np.errstate(invalid="ignore", divide="ignore"):
         values = np.sqrt(sq[idx].sum(1) / n[idx].sum(1))
+    if np.all(np.isnan(values)):
+        return float("nan"), float("nan")
     lo, hi = np.nanpercentile(values, [(1 - level) / 2 * 100, (1 + level) / 2 * 100])
     return float(lo), float(hi)
+
+
+def pooled_from_rows(rows: Sequence[dict]) -> dict[str, float]:
+    """Pooled RMSAEs (all / non-silent) and their bootstrap CIs from per-episode rows alone.
+
+    Exact: a pooled RMS is sqrt(sum_i n_i rms_i^2 / sum_i n_i) over episodes i.
+    """
+    out: dict[str, float] = {}
+    for stat, count in (("rmsae_all", "n_frames"), ("rmsae_nonsilent", "n_nonsilent")):
+        rms = np.array([r[stat] for r in rows], float)
+        n = np.array([r[count] for r in rows], float)
+        sq = np.where(n > 0, np.nan_to_num(rms) ** 2 * n, 0.0)
+        out[stat] = float(np.sqrt(sq.sum() / n.sum())) if n.sum() > 0 else float("nan")
+        out[f"{stat}_ci95"] = bootstrap_ci_from_sums(sq, n)
+    out["n_episodes"] = len(rows)
+    return out
 
 
 def group_by(rows: Iterable[dict], keys: Sequence[str]) -> dict[tuple, list[dict]]:

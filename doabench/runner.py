@@ -19,7 +19,7 @@ import numpy as np
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
 from doabench.errors import ConfigError, TrackerError
-from doabench.metrics import aggregate, azimuth_errors_deg, bootstrap_ci, episode_metrics, frame_errors_deg
+from doabench.metrics import aggregate, pooled_from_rows, azimuth_errors_deg, bootstrap_ci, episode_metrics, frame_errors_deg
 from doabench.results.files import to_json
 from doabench.results.provenance import environment
 from doabench.trackers.base import Tracker
@@ -97,8 +97,9 @@ def _config_hash(config: dict) -> str:
 def _episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
     meta = ep["metadata"]
     scene = meta.get("scene", {}) if isinstance(meta.get("scene"), dict) else {}
+    room = scene.get("room", {}) if isinstance(scene.get("room"), dict) else {}
     row = {"episode": index, "task": meta.get("task"), "seed": meta.get("seed"),
-           "t60": scene.get("t60", meta.get("t60")), "snr": scene.get("snr_db", meta.get("snr")),
+           "t60": room.get("t60", meta.get("t60")), "snr": scene.get("snr_db", meta.get("snr")),
            "recording": meta.get("recording"), "audio_s": ep["audio_s"], "tracker_s": ep["tracker_s"]}
     row.update(episode_metrics(ep["estimates"], ep["truth"], ep["vad"]))
     return row
@@ -147,7 +148,8 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
         record = {"row": _episode_row(index, ep), "errors": frame_errors_deg(ep["estimates"], ep["truth"]),
                   "az_errors": azimuth_errors_deg(ep["estimates"], ep["truth"]), "vad": ep["vad"]}
         if keep_frames:
-            record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"]}
+            record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"],
+                                "vad": ep["vad"]}
         record = json.loads(to_json(record, indent=None))
         done[index] = record
         if partial_path:
@@ -163,6 +165,17 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     wall_s = time.perf_counter() - wall_start
     records = [done[i] for i in indices]
     return _results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, device, delays)
+
+
+def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
+    """Per-cell pooled RMSAEs with bootstrap CIs for a grid task, from the per-episode rows."""
+    cells = {}
+    for task_id in spec.params.get("cells", []):
+        sub = [r for r in rows if r["task"] == task_id]
+        if sub:
+            cell = get_task_spec(task_id).params["cell"]
+            cells[task_id] = {"t60": cell["t60"], "snr": cell["snr"], **pooled_from_rows(sub)}
+    return cells
 
 
 def _load_partial(path: str | Path | None, config_hash: str) -> dict[int, dict]:
@@ -201,19 +214,7 @@ def _results(spec, tracker: Tracker, tracker_text: str, tracker_options, env: Do
         "pooled": agg["pooled"],
         "episode_mean": agg["episode_mean"],
     }
-    cells = {}
-    if any(r.get("t60") is not None for r in rows) and "cells" in spec.params:
-        for task_id in spec.params["cells"]:
-            idx = [i for i, r in enumerate(rows) if r["task"] == task_id]
-            if not idx:
-                continue
-            sub = aggregate([per_frame[i] for i in idx], [rows[i] for i in idx])
-            cells[task_id] = {"t60": rows[idx[0]]["t60"], "snr": rows[idx[0]]["snr"],
-                              "rmsae_all": sub["pooled"]["rmsae_all"],
-                              "rmsae_nonsilent": sub["pooled"]["rmsae_nonsilent"],
-                              "rmsae_all_ci95": bootstrap_ci([ci_input[i] for i in idx], "rmsae_all"),
-                              "rmsae_nonsilent_ci95": bootstrap_ci([ci_input[i] for i in idx], "rmsae_nonsilent"),
-                              "n_episodes": len(idx)}
+    cells = grid_cells(spec, rows)
     audio_s = float(sum(r["audio_s"] for r in rows))
     tracker_s = float(sum(r["tracker_s"] for r in rows))
     return {

@@ -78,3 +78,20 @@ def test_bootstrap_ci_brackets_the_estimate_and_collapses_for_equal_episodes():
     same = [(np.full(10, 3.0), np.ones(10, bool))] * 5
     lo, hi = bootstrap_ci(same, "rmsae_nonsilent")
     assert lo == pytest.approx(3.0) and hi == pytest.approx(3.0)
+
+
+def test_pooled_from_rows_equals_pooling_the_frames():
+    from doabench.metrics import pooled_from_rows
+
+    rng = np.random.default_rng(1)
+    per_frame, rows = [], []
+    for n in (50, 80, 20):
+        e = np.abs(rng.normal(0, 10, n))
+        v = rng.random(n) > 0.3
+        per_frame.append((e, e, v))
+        rows.append({**__import__("doabench.metrics", fromlist=["error_summary"]).error_summary(e, v)})
+    pooled = aggregate(per_frame, rows)["pooled"]
+    from_rows = pooled_from_rows(rows)
+    assert from_rows["rmsae_all"] == pytest.approx(pooled["rmsae_all"])
+    assert from_rows["rmsae_nonsilent"] == pytest.approx(pooled["rmsae_nonsilent"])
+    assert bootstrap_ci([(e, v) for e, _, v in per_frame], "rmsae_all") == pytest.approx(from_rows["rmsae_all_ci95"])
