@@ -19,6 +19,7 @@ into 2, and the sinc into a dense, batched convolution.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -34,7 +35,9 @@ OVERSAMPLE = 8  # fractional-delay grid: 1/8 sample, linear interpolation in bet
 _BLOCK = 16  # outputs per strided-convolution step (speed only; results do not depend on it)
 _TAIL_FIT_MIN_SAMPLES = 32  # below this many usable ISM samples the tail level is theoretical
 _CHUNK_ELEMENTS = 4_000_000  # bounds the temporaries of one chunk of trajectory points
-_IMAGE_SLICE = 8192  # images per step of the per-microphone work (cache-sized temporaries)
+# Elements (mics x images) per step of the per-image work: the temporaries stay in cache (the
+# work is memory-bound; DRAM-sized temporaries were 2x slower).
+_SLICE_ELEMENTS = 98304
 
 
 # --------------------------------------------------------------------------------------------
@@ -55,6 +58,26 @@ def make_generator(seed: int | torch.Generator | None, device: torch.device) -> 
     gen = torch.Generator(device=device)
     gen.manual_seed(int(seed))
     return gen
+
+
+@contextlib.contextmanager
+def single_threaded():
+    """Run torch ops on the calling thread only, restoring the thread count afterwards.
+
+    For loops of many small ops: each would otherwise be handed to the OpenMP pool (sqrt_ and
+    other VML kernels go parallel from 2048 elements), and on an oversubscribed machine the
+    hand-offs cost far more than the work (20x slower with 2 threads at a load of 8 on 2 cores).
+    Changes torch's process-wide thread count while it runs.
+    """
+    n = torch.get_num_threads()
+    if n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
 
 
 def accumulate_(buffer: torch.Tensor, index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
@@ -264,32 +287,33 @@ def render_images(
         buf = torch.zeros(size, **f32)
         if workspace is not None:
             workspace[:] = [buf]
-    row_start = p_idx * (M * width) + (half + 1) * over  # (K,) first column of (point, mic 0)
-    mic_start = torch.arange(M, device=device)[:, None] * width  # (M, 1)
-    exact_float = size < 2**24  # float32 holds these integers exactly: add before converting
+    index_dtype = torch.int32 if size < 2**31 else torch.int64
+    row_start = (p_idx * (M * width) + (half + 1) * over).to(index_dtype)  # (K,) (point, mic 0)
+    mic_start = (torch.arange(M, device=device)[:, None] * width).to(index_dtype)  # (M, 1)
     mic_sq = (mic * mic).sum(1, keepdim=True)
 
     # Slices of images small enough that the (M, slice) temporaries stay in cache; the work is
     # memory-bound, and DRAM-sized temporaries made it 2-3x slower.
-    for k0 in range(0, pos.shape[1], _IMAGE_SLICE):
-        k1 = min(pos.shape[1], k0 + _IMAGE_SLICE)
-        # distances (M, k): consecutive writes stay in one (point, mic) row
-        dist = torch.addmm(mic_sq, mic, pos[:, k0:k1], alpha=-2.0)
-        dist.add_(pos_sq[k0:k1]).clamp_(min=1e-12).sqrt_()
-        w0 = amp[k0:k1] / dist
-        t = dist.mul_(to_samples * over)  # arrival on the fine grid, >= 0
-        q = torch.floor(t)
-        frac = t.sub_(q)
-        w1 = w0 * frac
-        w0.sub_(w1)
-        if exact_float:
-            index = q.add_(row_start[k0:k1].to(torch.float32)).add_(mic_start.to(torch.float32))
-            index = index.to(torch.int32).to(torch.int64).view(-1)  # 3x faster than direct
-        else:
-            index = q.to(torch.int64).add_(row_start[k0:k1]).add_(mic_start).view(-1)
-        accumulate_(buf[:-1], index, w0.view(-1))
-        accumulate_(buf[1:], index, w1.view(-1))
-    del dist, w0, w1, q, frac, index
+    n_slice = max(1, _SLICE_ELEMENTS // M)
+    with single_threaded():  # slices are cache-sized: threads only add hand-off cost
+        for k0 in range(0, pos.shape[1], n_slice):
+            k1 = min(pos.shape[1], k0 + n_slice)
+            # distances (M, k) as |p|^2 - 2 p.m + |m|^2 (M x k layout: consecutive writes stay
+            # in one (point, mic) row)
+            dist = mic_sq + pos_sq[None, k0:k1]
+            for a in range(3):
+                dist.addcmul_(mic[:, a, None], pos[None, a, k0:k1], value=-2.0)
+            dist.clamp_(min=1e-12).sqrt_()
+            w0 = amp[k0:k1] / dist
+            t = dist.mul_(to_samples * over)  # arrival on the fine grid, >= 0
+            q = t.to(index_dtype)  # floor (t >= 0); float -> int32 is 10x cheaper than -> int64
+            frac = t.sub_(q)
+            w1 = w0 * frac
+            w0.sub_(w1)
+            index = q.add_(row_start[k0:k1]).add_(mic_start).to(torch.int64).view(-1)
+            accumulate_(buf[:-1], index, w0.view(-1))
+            accumulate_(buf[1:], index, w1.view(-1))
+    del dist, w0, w1, q, frac, index, t
 
     conv = F.conv1d(buf[:-1].view(P * M, 1, width), _kernel(device), stride=block * over)
     del buf

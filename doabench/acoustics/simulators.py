@@ -195,12 +195,23 @@ def direct_path(
     src, mic, fs = prepare_geometry(room, sources, mics, fs)
     x = _signal(signal)
     dev = engine.resolve_device(device)
-    h = engine.direct_rirs(torch.tensor(src, device=dev), torch.tensor(mic, device=dev), fs)
-    return convolve_trajectory(h, torch.as_tensor(x, device=dev)).cpu().numpy()
+    with _threads(dev):
+        h = engine.direct_rirs(torch.tensor(src, device=dev), torch.tensor(mic, device=dev), fs)
+        return convolve_trajectory(h, torch.as_tensor(x, device=dev)).cpu().numpy()
 
 
 # --------------------------------------------------------------------------------------------
 # backends
+
+
+def _threads(device: torch.device):
+    """Single-threaded torch on CPU for the duration of a simulation.
+
+    One trajectory is many medium-sized ops: two threads gained little on an idle 2-core machine,
+    and on a loaded one the thread-pool hand-offs made it 5-20x slower. To use more cores,
+    simulate several trajectories in parallel processes (e.g. data-loader workers).
+    """
+    return engine.single_threaded() if device.type == "cpu" else contextlib.nullcontext()
 
 
 class _TorchBackend:
@@ -217,7 +228,8 @@ class _TorchBackend:
         T60 = 0). ``seed`` (int or torch.Generator) fixes the diffuse-tail noise."""
         src, mic, fs = prepare_geometry(room, sources, mics, fs)
         gen = engine.make_generator(seed, self.device)
-        return self.rirs_tensor(room, src, mic, fs, gen).cpu().numpy()
+        with _threads(self.device):
+            return self.rirs_tensor(room, src, mic, fs, gen).cpu().numpy()
 
     def simulate(self, room: Room, sources, mics, signal, fs: int, *, seed=None) -> np.ndarray:
         """Signals ``(M, L)`` float32 of ``signal`` ``(L,)`` moving along ``sources`` ``(S, 3)``;
@@ -225,8 +237,9 @@ class _TorchBackend:
         src, mic, fs = prepare_geometry(room, sources, mics, fs)
         x = _signal(signal)
         gen = engine.make_generator(seed, self.device)
-        h = self.rirs_tensor(room, src, mic, fs, gen)
-        return convolve_trajectory(h, torch.as_tensor(x, device=self.device)).cpu().numpy()
+        with _threads(self.device):
+            h = self.rirs_tensor(room, src, mic, fs, gen)
+            return convolve_trajectory(h, torch.as_tensor(x, device=self.device)).cpu().numpy()
 
 
 class BuiltinSimulator(_TorchBackend):
@@ -264,8 +277,9 @@ class BuiltinSimulator(_TorchBackend):
         gen = engine.make_generator(seed, self.device)
         layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mic), fs)
         nfft = trajectory_fft_size(len(x), len(src), layout.n_taps)
-        h = self.rirs_tensor(room, src, mic, fs, gen, width=nfft)  # zero-padded: no copy in the FFT
-        return convolve_trajectory(h, torch.as_tensor(x, device=self.device), layout.n_taps).cpu().numpy()
+        with _threads(self.device):
+            h = self.rirs_tensor(room, src, mic, fs, gen, width=nfft)  # zero-padded: no copy in the FFT
+            return convolve_trajectory(h, torch.as_tensor(x, device=self.device), layout.n_taps).cpu().numpy()
 
 
 _PRA_WALLS = ("west", "east", "south", "north", "floor", "ceiling")  # = x0, x1, y0, y1, z0, z1
