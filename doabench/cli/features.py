@@ -8,14 +8,12 @@ grid angles in degrees for maps, pairs and lags for GCC). Both are written atomi
 from __future__ import annotations
 
 import json
-import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from doabench.errors import ConfigError, InputError, NotFoundError
+from doabench.errors import ConfigError, NotFoundError
+from doabench.results.files import atomic_path, write_text
 from doabench.framing import DEFAULT_FS, DEFAULT_WINDOW, FrameSpec
 
 HELP = "compute SRP-PHAT maps, GCC-PHAT or spectrograms of a WAV recording"
@@ -36,43 +34,10 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def read_recording(path: Path) -> tuple[np.ndarray, int]:
-    """``(n_channels, samples)`` float32 and the sample rate; user errors as DoabenchError."""
+def read_audio_rate(path: Path) -> int:
     import soundfile as sf
 
-    if not path.exists():
-        raise NotFoundError(f"recording {path} does not exist")
-    if not path.is_file():
-        raise InputError(f"recording {path} is not a file")
-    try:
-        data, sr = sf.read(str(path), dtype="float32", always_2d=True)
-    except Exception as exc:  # libsndfile reports every unreadable file its own way
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"cannot read {path} as audio ({msg})") from None
-    return np.ascontiguousarray(data.T), int(sr)
-
-
-def resample(x: np.ndarray, sr: int, fs: int) -> np.ndarray:
-    """Polyphase resampling (Kaiser-windowed anti-aliasing filter) of ``(channels, samples)``."""
-    from scipy.signal import resample_poly
-
-    g = math.gcd(sr, fs)
-    return resample_poly(x, fs // g, sr // g, axis=-1).astype(np.float32)
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Write through ``write(file)`` into a temp file in the same directory, then rename."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    return int(sf.info(str(path)).samplerate)
 
 
 def _sidecar(args, extractor, result: np.ndarray, sr: int, resampled: bool) -> dict:
@@ -140,20 +105,10 @@ def run(args) -> int:
     resolution = parse_resolution(args.resolution)
 
     path = Path(args.recording)
-    audio, sr = read_recording(path)
-    if audio.shape[0] != array.n_mics:
-        raise InputError(f"{path} has {audio.shape[0]} channels but array {array.name!r} has {array.n_mics} microphones")
-    if not np.all(np.isfinite(audio)):
-        raise InputError(f"{path} contains NaN or infinite samples")
-    resampled = False
-    if sr != args.fs:
-        if not args.resample:
-            raise InputError(f"{path} is sampled at {sr} Hz, not {args.fs} Hz: pass --resample to convert it")
-        audio, resampled = resample(audio, sr, args.fs), True
-    if audio.shape[-1] < spec.window:
-        raise InputError(
-            f"{path} has {audio.shape[-1]} samples at {args.fs} Hz, shorter than one {spec.window}-sample window"
-        )
+    from doabench.recording import load_recording
+
+    audio, resampled = load_recording(path, array, args.fs, args.resample, min_samples=spec.window)
+    sr = read_audio_rate(path) if resampled else args.fs
 
     extractor = FeatureExtractor(
         array,
@@ -166,7 +121,9 @@ def run(args) -> int:
     with torch.inference_mode():
         result = extractor(audio)[args.kind].numpy().astype(np.float32, copy=False)
     meta = _sidecar(args, extractor, result, sr, resampled)
-    _atomic_write(out, lambda f: np.save(f, result))
-    _atomic_write(sidecar, lambda f: f.write((json.dumps(meta) + "\n").encode()))
+    with atomic_path(out) as tmp:
+        with open(tmp, "wb") as f:  # a file object: np.save would append .npy to a bare path
+            np.save(f, result)
+    write_text(sidecar, json.dumps(meta) + "\n")
     print(f"wrote {out} {tuple(result.shape)} and {sidecar}")
     return 0
