@@ -17,7 +17,6 @@ map resolution: ``<model>.safetensors``).
 from __future__ import annotations
 
 import datetime
-import hashlib
 import json
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -27,6 +26,7 @@ import torch
 from torch import nn
 
 import doabench
+from doabench import parse_resolution, sha256_file  # noqa: F401  (sha256_file is used by the trackers)
 from doabench.errors import ConfigError, InputError, NotFoundError
 
 FORMAT = "doabench-weights/1"
@@ -38,26 +38,6 @@ ARRAY_TOLERANCE_M = 0.005
 
 def resolution_text(resolution: tuple[int, int] | None) -> str | None:
     return None if resolution is None else "%dx%d" % tuple(resolution)
-
-
-def parse_resolution(text: str) -> tuple[int, int]:
-    """``"16x32"`` -> ``(16, 32)``; ConfigError otherwise."""
-    try:
-        a, b = str(text).lower().split("x")
-        n_theta, n_phi = int(a), int(b)
-    except ValueError:
-        raise ConfigError(f"resolution {text!r} is not of the form N_THETAxN_PHI, e.g. 16x32") from None
-    if n_theta < 2 or n_phi < 2:
-        raise ConfigError(f"resolution {text!r}: both N_theta and N_phi must be at least 2")
-    return n_theta, n_phi
-
-
-def sha256_file(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def make_metadata(

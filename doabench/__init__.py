@@ -18,6 +18,8 @@ from doabench.envs.sources import register_task_kind
 from doabench.episode import Episode
 from doabench.errors import DoabenchError
 from doabench.framing import FrameSpec
+from doabench.geometry import parse_resolution
+from doabench.results.provenance import sha256_file
 from doabench.trackers import Tracker, available_trackers, make_tracker, register_tracker
 
 
@@ -33,5 +35,5 @@ available_tasks()  # registers every task with Gymnasium at import time
 __all__ = [
     "DoabenchError", "Episode", "FrameSpec", "MicArray", "Tracker", "available_tasks", "available_trackers",
     "get_array", "get_task_spec", "load_array_file", "make_tracker", "register_task", "register_task_kind",
-    "register_tracker", "run",
+    "parse_resolution", "register_tracker", "run", "sha256_file",
 ]

@@ -17,3 +17,15 @@ def librispeech_root() -> Path:
     if not (SHARED_LIBRISPEECH / "test-other").is_dir():
         pytest.skip(f"real LibriSpeech subset not found at {SHARED_LIBRISPEECH}")
     return SHARED_LIBRISPEECH
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _one_torch_thread():
+    """One intra-op thread: results do not depend on the machine's thread count, and test runs on
+    a shared 2-core machine do not oversubscribe it."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

@@ -15,13 +15,6 @@ from doabench_baselines.cross3d import Cross3D
 from doabench_baselines.trackers import Cross3DTracker, MaxCnn1dTracker
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 def _untrained(cls, *args, **kwargs):
     with warnings.catch_warnings():

@@ -27,15 +27,6 @@ FS = 16000
 NAO = get_array("nao")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    # The test machine's two cores are shared: two OpenMP threads competing with other processes
-    # spin-wait and run several times slower than one.
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
-
 
 def plane_wave(directions: np.ndarray, n_samples: int, positions: np.ndarray, rng, fs: int = FS) -> np.ndarray:
     """White noise arriving as a plane wave from each direction ``(B, 3)`` -> ``(B, n_mics, n)``.

@@ -21,14 +21,6 @@ CROSS3D_PARAMETERS = {
 }
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """The test machine is shared; one intra-op thread avoids oversubscription stalls."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 @pytest.mark.parametrize("resolution,expected", sorted(CROSS3D_PARAMETERS.items()))
 def test_cross3d_parameter_count_matches_table_1(resolution, expected):

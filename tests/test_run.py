@@ -1,7 +1,5 @@
 """Environments and `doabench run`: Gymnasium compliance, determinism, plugins, sanity scores."""
 import json
-import sys
-from pathlib import Path
 
 import gymnasium
 import numpy as np

@@ -20,14 +20,6 @@ def assert_close(actual, expected):
     assert float(err.max()) <= ATOL, f"max abs difference {float((actual - expected).abs().max()):.3g}"
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """The test machine is shared; one intra-op thread avoids oversubscription stalls."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 def _streamed(model, x):
     """Feed x (batch, C, frames, ...) one frame at a time; returns (batch, frames, 3)."""
