@@ -258,3 +258,28 @@ def test_versions_are_strings():
     for name in ("builtin", "pyroomacoustics"):
         v = get_simulator(name).versions()
         assert v["backend"] == name and all(isinstance(x, str) for x in v.values())
+
+
+def test_results_do_not_depend_on_chunking(builtin, monkeypatch):
+    room = Room((4.5, 4.0, 2.7), 0.4, WEIGHTS)
+    src = np.linspace([1.0, 1.0, 1.0], [3.5, 3.0, 2.0], 6)
+    mics = np.array([[2.5, 2.0, 1.2], [2.55, 2.0, 1.25], [2.5, 2.05, 1.2]])
+    ref = builtin.rirs(room, src, mics, FS, seed=4)
+    monkeypatch.setattr(engine, "_CHUNK_ELEMENTS", 1)  # one point per chunk
+    monkeypatch.setattr(engine, "_SLICE_ELEMENTS", 30)  # tiny image slices
+    out = builtin.rirs(room, src, mics, FS, seed=4)
+    assert np.allclose(out, ref, rtol=0, atol=1e-6 * np.abs(ref).max())
+
+
+def test_simulation_leaves_global_settings_alone(builtin):
+    import pyroomacoustics as pra
+
+    threads = torch.get_num_threads()
+    hpf = pra.constants.get("rir_hpf_enable")
+    fdl = pra.constants.get("frac_delay_length")
+    room = Room((4, 3.5, 2.6), 0.25)
+    src, mics = np.array([[1.0, 1.0, 1.3]]), np.array([[2.8, 2.2, 1.1], [2.9, 2.3, 1.2]])
+    builtin.simulate(room, src, mics, np.ones(100), FS, seed=0)
+    get_simulator("pyroomacoustics").rirs(room, src, mics, FS, seed=0)
+    assert torch.get_num_threads() == threads
+    assert pra.constants.get("rir_hpf_enable") == hpf and pra.constants.get("frac_delay_length") == fdl
