@@ -13,9 +13,10 @@ Model (details and rationale in docs/simulation.md, "Room impulse responses"):
   excluded) so the tail continues the ISM's energy envelope.
 
 Speed: the sinc is not evaluated per image. Images are accumulated (linear interpolation) into
-an OVERSAMPLE-times finer grid stored as OVERSAMPLE polyphase rows, and one strided convolution
-applies the matching windowed-sinc phase to each row. This turns 34 scattered writes per image
-into 2, and the sinc into a dense, batched convolution.
+an OVERSAMPLE-times finer time grid, and one strided convolution whose kernel holds every
+windowed-sinc phase turns the fine grid into samples. This turns 34 scattered writes per image
+into 2, and the sinc into a dense, batched convolution. The per-image work runs in cache-sized
+slices, single-threaded (see :func:`single_threaded`).
 """
 from __future__ import annotations
 
@@ -295,7 +296,8 @@ def render_images(
     # Slices of images small enough that the (M, slice) temporaries stay in cache; the work is
     # memory-bound, and DRAM-sized temporaries made it 2-3x slower.
     n_slice = max(1, _SLICE_ELEMENTS // M)
-    with single_threaded():  # slices are cache-sized: threads only add hand-off cost
+    serial = single_threaded() if device.type == "cpu" else contextlib.nullcontext()
+    with serial:  # slices are cache-sized: threads only add hand-off cost
         for k0 in range(0, pos.shape[1], n_slice):
             k1 = min(pos.shape[1], k0 + n_slice)
             # distances (M, k) as |p|^2 - 2 p.m + |m|^2 (M x k layout: consecutive writes stay
@@ -313,7 +315,6 @@ def render_images(
             index = q.add_(row_start[k0:k1]).add_(mic_start).to(torch.int64).view(-1)
             accumulate_(buf[:-1], index, w0.view(-1))
             accumulate_(buf[1:], index, w1.view(-1))
-    del dist, w0, w1, q, frac, index, t
 
     conv = F.conv1d(buf[:-1].view(P * M, 1, width), _kernel(device), stride=block * over)
     del buf

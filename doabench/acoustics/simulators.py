@@ -14,6 +14,7 @@ point ``i`` and the results are overlap-added.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import math
 from typing import Protocol, runtime_checkable
 
@@ -300,12 +301,8 @@ class PyroomacousticsSimulator(_TorchBackend):
     SOURCES_PER_ROOM = 8  # bounds pyroomacoustics' image arrays
 
     def __init__(self, device: str | torch.device | None = None) -> None:
-        try:
-            import pyroomacoustics  # noqa: F401
-        except ImportError:
-            raise DependencyError(
-                "pyroomacoustics is not installed: pip install pyroomacoustics==0.10.1"
-            ) from None
+        if importlib.util.find_spec("pyroomacoustics") is None:
+            raise DependencyError("pyroomacoustics is not installed: pip install pyroomacoustics==0.10.1")
         self.device = engine.resolve_device(device)
 
     def settings(self) -> dict:
