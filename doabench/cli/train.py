@@ -43,6 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-epochs", type=int, help="stop after this many epochs in this invocation")
     p.add_argument("--export", metavar="FILE", help="export the run's weights to FILE (.safetensors) and exit")
     p.add_argument("--export-from", choices=["best", "latest"], default="best", help="checkpoint to export")
+    p.add_argument("--export-dtype", choices=["float32", "float16"], default="float32",
+                   help="precision of the exported weights (float16 halves the file)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=main)
 
@@ -82,7 +84,8 @@ def main(args: argparse.Namespace) -> int:
     if args.export:
         from doabench.training.export import export_weights
 
-        path = export_weights(args.out, args.export, args.export_from, tracker_id=args.tracker)
+        path = export_weights(args.out, args.export, args.export_from, tracker_id=args.tracker,
+                              dtype=args.export_dtype)
         print(f"wrote {path}")
         return 0
     check_trainable(make_tracker(args.tracker, **options), args.tracker)  # fail fast, one line

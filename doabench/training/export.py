@@ -45,12 +45,15 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
 
 
 def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best", tracker: Any = None,
-                   tracker_id: str | None = None) -> Path:
+                   tracker_id: str | None = None, dtype: str = "float32") -> Path:
     """Load ``best.pt`` or ``checkpoint.pt`` of ``run_dir`` into the tracker and save its weights.
 
     ``tracker_id`` (default: the id the run was trained with) builds the tracker when ``tracker``
-    is not given; its network must have the same parameter names and shapes.
+    is not given; its network must have the same parameter names and shapes. ``dtype="float16"``
+    stores half-precision weights (half the file size; loading converts them back to float32).
     """
+    if dtype not in ("float32", "float16"):
+        raise ConfigError(f"export dtype must be float32 or float16, got {dtype!r}")
     from doabench.trackers.registry import make_tracker
 
     if which not in ("best", "latest"):
@@ -69,7 +72,14 @@ def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best
     tracker.network.eval()
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    tracker.save_weights(out_path, training_metadata(state, tracker, which, tracker_id))
+    meta = training_metadata(state, tracker, which, tracker_id)
+    meta["training"]["stored_dtype"] = dtype
+    if dtype == "float16":
+        tracker.network.half()
+    try:
+        tracker.save_weights(out_path, meta)
+    finally:
+        tracker.network.float()
     return out_path
 
 
