@@ -9,7 +9,8 @@ tracker with :func:`doabench.make_tracker` and trains it through this small prot
     tracker.network         # the torch.nn.Module being trained
     tracker.network_input(features)   # dict of (B, T, ...) tensors -> the network's input tensor
     tracker.network(x)      # -> (B, T, 3) direction vectors (not necessarily unit length)
-    tracker.save_weights(path, metadata)   # safetensors file plus metadata
+    tracker.save_weights(path, metadata)   # safetensors file; metadata["training"] is the
+                                           # training record (see doabench.training.export)
 
 Optional: ``tracker.training_defaults`` (dict) with recipe overrides the paper gives for that
 model, e.g. ``{"t60": (0.0, 0.3)}`` for spectrogram models (section V-A); when absent the trainer
