@@ -43,18 +43,20 @@ def cpu_name() -> str:
     return platform.processor() or "unknown CPU"
 
 
-def time_call(fn, runs: int, budget_s: float) -> tuple[float, int]:
-    """Median wall time of ``fn()`` over ``runs`` runs after one warm-up (fewer if over budget)."""
+def time_call(fn, runs: int, budget_s: float) -> tuple[float, float, int]:
+    """Median wall and process-CPU seconds of ``fn()`` over ``runs`` runs after one warm-up
+    (fewer runs if they would take longer than ``budget_s``)."""
     t0 = time.perf_counter()
     fn()
     first = time.perf_counter() - t0
     runs = max(1, min(runs, int(budget_s / max(first, 1e-9))))
-    times = []
+    wall, cpu = [], []
     for _ in range(runs):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), runs
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return statistics.median(wall), statistics.median(cpu), runs
 
 
 def pra_time(positions: np.ndarray, spectra: np.ndarray, res, fs: int, window: int, n_frames: int):
@@ -81,6 +83,7 @@ def main() -> None:
     parser.add_argument("--budget", type=float, default=30.0, help="max seconds of timed runs per configuration")
     parser.add_argument("--pra-frames", type=int, default=None, help="frames pyroomacoustics is timed on (default: 3, 1 above 16x32)")
     parser.add_argument("--quick", action="store_true", help="doabench only, 3 runs")
+    parser.add_argument("--no-pra", action="store_true", help="skip pyroomacoustics")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's default)")
     args = parser.parse_args()
     if args.threads:
@@ -97,7 +100,10 @@ def main() -> None:
     print(f"machine: {cpu_name()}, {os.cpu_count()} CPUs, torch {torch.__version__} with {torch.get_num_threads()} threads")
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     print(f"input: {args.seconds:g} s, {array.n_mics} mics, {spec.fs} Hz -> {n_frames} frames of {spec.window} (hop {spec.hop})")
-    header = f"{'grid':>7} | {'nearest s':>9} | {'maps/s':>7} | {'exact s':>8} | {'pra s (scaled)':>14} | {'pra/nearest':>11} | {'pra/exact':>9} | argmax pra==exact"
+    header = (
+        f"{'grid':>7} | {'nearest s':>9} | {'(cpu s)':>7} | {'maps/s':>7} | {'exact s':>8} | {'(cpu s)':>7} | "
+        f"{'pra s (scaled)':>14} | {'pra/nearest':>11} | {'pra/exact':>9} | argmax pra==exact"
+    )
     print(header)
     print("-" * len(header))
     rows = []
@@ -107,9 +113,9 @@ def main() -> None:
         for mode in ("nearest", "exact"):
             srp = SRPPHAT(array, res, spec, mode)
             with torch.inference_mode():
-                row[mode], row[mode + "_runs"] = time_call(lambda: srp(audio), runs, args.budget)
+                row[mode], row[mode + "_cpu"], row[mode + "_runs"] = time_call(lambda: srp(audio), runs, args.budget)
                 maps[mode] = srp(audio)[0]
-        if not args.quick:
+        if not (args.quick or args.no_pra):
             n_pra = args.pra_frames or (3 if res[0] * res[1] <= 512 else 1)
             per_frame, peaks = pra_time(array.positions, spectra, res, spec.fs, spec.window, n_pra)
             row["pra"] = per_frame * n_frames
@@ -120,11 +126,14 @@ def main() -> None:
         ratio_n = f"{row['pra'] / row['nearest']:.0f}x" if "pra" in row else "-"
         ratio_e = f"{row['pra'] / row['exact']:.0f}x" if "pra" in row else "-"
         print(
-            f"{row['res']:>7} | {row['nearest']:9.4f} | {n_frames / row['nearest']:7.0f} | {row['exact']:8.3f} | "
+            f"{row['res']:>7} | {row['nearest']:9.4f} | {row['nearest_cpu']:7.4f} | {n_frames / row['nearest']:7.0f} | "
+            f"{row['exact']:8.3f} | {row['exact_cpu']:7.3f} | "
             f"{pra_s:>14} | {ratio_n:>11} | {ratio_e:>9} | {row.get('agree', '-')}",
             flush=True,
         )
         rows.append(row)
+    print("(cpu s: process CPU time of the same call, all threads; runs: "
+          + ", ".join(f"{r['res']} {r['nearest_runs']}/{r['exact_runs']}" for r in rows) + " nearest/exact)")
     print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     target = next(r for r in rows if r["res"] == "16x32")
     print(

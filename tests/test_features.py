@@ -109,18 +109,21 @@ def test_any_resolution_shapes(res):
         assert m.shape == (2, 2) + res and m.dtype == torch.float32 and torch.isfinite(m).all()
 
 
-def test_exact_equals_bruteforce_eq3():
+@pytest.mark.parametrize("K", [64, 63])
+def test_exact_equals_bruteforce_eq3(K):
     """Exact mode vs eq. (3) (PHAT beamformer) and eq. (4)-(5) (pair sum), float64 loops."""
     rng = np.random.default_rng(7)
-    M, K, hop, n_theta, n_phi = 4, 64, 48, 5, 6
+    M, hop, n_theta, n_phi = 4, 48, 5, 6
     pos = rng.uniform(-0.05, 0.05, (M, 3))
     x = rng.standard_normal((2, M, K + hop))
-    got = F.srp_phat(F.stft_frames(torch.from_numpy(x).float(), K, hop), pos, n_theta, n_phi, FS, mode="exact")
+    got = F.srp_phat(F.stft_frames(torch.from_numpy(x).float(), K, hop), pos, n_theta, n_phi, FS, mode="exact", window=K)
 
     win = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(K) / K)  # periodic Hann
     w = 2 * np.pi * np.arange(K // 2 + 1) / K
-    a = np.full(K // 2 + 1, 2.0)
-    a[0] = a[-1] = 1.0
+    a = np.full(K // 2 + 1, 2.0)  # multiplicity of each rfft bin in the full spectrum
+    a[0] = 1.0
+    if K % 2 == 0:
+        a[-1] = 1.0  # Nyquist
     grid = grid_unit_vectors(n_theta, n_phi).reshape(-1, 3)
     ref3 = np.zeros((2, 2, len(grid)))
     ref45 = np.zeros_like(ref3)
@@ -160,6 +163,20 @@ def test_gcc_equals_irfft_reference():
     big = F.gcc_phat(X, pairs, 63).numpy()
     ref = np.concatenate([r[..., -63:], r[..., :64]], axis=-1)
     np.testing.assert_allclose(big, ref, atol=1e-6)
+
+
+def test_planar_array_upper_hemisphere():
+    d = 0.04
+    array = MicArray("square", np.array([[d, 0, 0], [0, d, 0], [-d, 0, 0], [0, -d, 0], [0.7 * d, 0.7 * d, 0]]), planar=True)
+    rng = np.random.default_rng(9)
+    u = np.array([[np.sin(0.6) * np.cos(2.0), np.sin(0.6) * np.sin(2.0), np.cos(0.6)]])
+    x = torch.from_numpy(plane_wave(u, 2048, array.positions, rng))
+    out = FeatureExtractor(array, kinds=("srp", "srp_max"), resolution=(10, 24), mode="exact", frame_spec=FrameSpec(2048))(x)
+    el, az = out["srp_max"][0, 0].tolist()
+    # Planar grids span elevations [0, pi/2]: srp_max's elevation is a fraction of pi/2.
+    assert abs(el * math.pi / 2 - 0.6) <= math.radians(10) and abs(az * 2 * math.pi - math.pi - 2.0) <= math.radians(15)
+    dirs = F.map_argmax_directions(out["srp"], planar=True)[0, 0].double().numpy()
+    assert great_circle_error(dirs, u[0]) <= math.radians(math.hypot(10, 15))
 
 
 @pytest.mark.parametrize("delay", [-3, 0, 2, 5])
