@@ -60,7 +60,7 @@ def time_call(fn, runs: int, budget_s: float) -> tuple[float, float, int]:
 
 
 def pra_time(positions: np.ndarray, spectra: np.ndarray, res, fs: int, window: int, n_frames: int):
-    """Seconds per frame of pyroomacoustics SRP and its argmax grid indices for the timed frames."""
+    """Wall and CPU seconds per frame of pyroomacoustics SRP, and its argmax grid indices."""
     import pyroomacoustics as pra
 
     el, az = grid_angles(*res)
@@ -69,11 +69,11 @@ def pra_time(positions: np.ndarray, spectra: np.ndarray, res, fs: int, window: i
     )
     bins = np.arange(window // 2 + 1)
     peaks = []
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for t in range(n_frames):
         doa.locate_sources(spectra[t][:, :, None], freq_bins=bins)
         peaks.append(int(np.argmax(doa.grid.values)))
-    return (time.perf_counter() - t0) / n_frames, peaks
+    return (time.perf_counter() - t0) / n_frames, (time.process_time() - c0) / n_frames, peaks
 
 
 def main() -> None:
@@ -117,8 +117,9 @@ def main() -> None:
                 maps[mode] = srp(audio)[0]
         if not (args.quick or args.no_pra):
             n_pra = args.pra_frames or (3 if res[0] * res[1] <= 512 else 1)
-            per_frame, peaks = pra_time(array.positions, spectra, res, spec.fs, spec.window, n_pra)
+            per_frame, cpu_per_frame, peaks = pra_time(array.positions, spectra, res, spec.fs, spec.window, n_pra)
             row["pra"] = per_frame * n_frames
+            row["pra_cpu"] = cpu_per_frame * n_frames
             ours = maps["exact"][:n_pra].flatten(1).argmax(1).tolist()
             row["agree"] = f"{sum(a == b for a, b in zip(peaks, ours))}/{n_pra}"
             row["pra_frames"] = n_pra
@@ -132,6 +133,8 @@ def main() -> None:
             flush=True,
         )
         rows.append(row)
+    if any("pra" in r for r in rows):
+        print("CPU-time ratios pra/nearest: " + ", ".join(f"{r['res']} {r['pra_cpu'] / r['nearest_cpu']:.0f}x" for r in rows if "pra" in r))
     print("(cpu s: process CPU time of the same call, all threads; runs: "
           + ", ".join(f"{r['res']} {r['nearest_runs']}/{r['exact_runs']}" for r in rows) + " nearest/exact)")
     print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
