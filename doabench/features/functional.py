@@ -6,15 +6,16 @@ Conventions (see docs/features.md for the long version):
   only, frame ``t`` covers samples ``[t * hop, t * hop + K)``).
 * Window: **periodic** Hann, ``w[n] = 0.5 - 0.5 cos(2 pi n / K)`` (``torch.hann_window``'s default).
 * Spectra ``X`` are ``(batch, frames, n_mics, K // 2 + 1)`` complex64.
-* PHAT is applied per microphone, ``W_n = X_n / (|X_n| + eps)`` (the paper's ``G_n = 1 / |X_n|``),
-  so the cross-spectrum of a pair is ``W_n W_m^*`` and a silent (all-zero) frame gives zeros.
+* PHAT is applied per microphone, ``W_n = X_n / sqrt(|X_n|^2 + eps^2)`` (the paper's
+  ``G_n = 1 / |X_n|``), so the cross-spectrum of a pair is ``W_n W_m^*`` and a silent (all-zero)
+  frame gives zeros.
 * ``R_nm(tau) = (1/K) sum over all K bins of W_n W_m^* e^{j w_k tau}`` (``irfft``), which peaks at
   ``tau = tau_n - tau_m``: the delay of mic ``n`` relative to mic ``m``.
 * Plane-wave delays in samples: ``tau_n(u) = -(r_n . u) fs / c`` (a mic closer to the source hears
   it earlier). An SRP map is ``sum over pairs n < m of R_nm(tau_n(u) - tau_m(u))``.
 
-Everything is vectorised; the only Python loops are over fixed-size memory blocks (chunks of frames
-or grid points), never over individual frames, pairs or grid points.
+Everything is vectorised; the only Python loops are over memory blocks (chunks of frames, bins or
+grid points) and over GCC lags, never over individual frames, pairs or grid points.
 """
 from __future__ import annotations
 
@@ -378,9 +379,11 @@ def srp_phat(
         return srp_exact_from_phat(W, torch.from_numpy(tau), window, n_theta, n_phi)
     if mode != "nearest":
         raise ConfigError(f"unknown delay mode {mode!r}: use one of {', '.join(DELAY_MODES)}")
-    pairs = np.array([(i, j) for i in range(len(pos)) for j in range(i + 1, len(pos))], dtype=np.int64)
+    pairs = np.stack(np.triu_indices(len(pos), 1), axis=1).astype(np.int64)  # MicArray.pairs order
     d_max = float(np.linalg.norm(pos[:, None] - pos[None], axis=-1).max())
     max_lag = int(np.ceil(d_max / c * fs))
+    if 2 * max_lag + 1 > window:
+        raise ConfigError(f"the array needs GCC lags up to {max_lag} samples, too many for a {window}-sample window")
     index = torch.from_numpy(nearest_lag_index(tau, pairs, max_lag))
     gcc = gcc_from_phat(W, torch.from_numpy(pairs).to(X.device), max_lag, window)
     return srp_from_gcc(gcc, index, n_theta, n_phi)
