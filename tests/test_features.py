@@ -27,7 +27,6 @@ FS = 16000
 NAO = get_array("nao")
 
 
-
 def plane_wave(directions: np.ndarray, n_samples: int, positions: np.ndarray, rng, fs: int = FS) -> np.ndarray:
     """White noise arriving as a plane wave from each direction ``(B, 3)`` -> ``(B, n_mics, n)``.
 
