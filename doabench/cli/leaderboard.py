@@ -1,0 +1,51 @@
+"""``doabench leaderboard``: Markdown and CSV tables per task from the results files."""
+from __future__ import annotations
+
+import argparse
+import shlex
+from pathlib import Path
+
+DEFAULT_REFERENCE = "locata-paper-table2.csv"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("leaderboard", help="build leaderboard tables from results files",
+                       description="Write one Markdown table and one CSV per task (grid tasks also get per-cell "
+                                   "tables and a cells CSV) plus summary.md, from the results JSON files. "
+                                   "Output is deterministic: the same inputs give byte-identical files.")
+    p.add_argument("--results", default="results", help="folder of results JSON files (default: results/)")
+    p.add_argument("--out", default="leaderboards", help="output folder (default: leaderboards/)")
+    p.add_argument("--reference", action="append", metavar="CSV",
+                   help=f"CSV of published reference rows (repeatable; default: OUT/{DEFAULT_REFERENCE} if present)")
+    p.add_argument("--check", action="store_true",
+                   help="write nothing; exit 1 if any generated file in OUT is missing or differs")
+    p.set_defaults(func=main)
+
+
+def _command(args: argparse.Namespace) -> str:
+    """The command line printed in the tables: the folders as given, so re-running it regenerates them."""
+    parts = ["doabench leaderboard", "--results", args.results, "--out", args.out]
+    for ref in args.reference or []:
+        parts += ["--reference", ref]
+    return " ".join(shlex.quote(p) if p not in ("doabench leaderboard",) else p for p in parts)
+
+
+def main(args: argparse.Namespace) -> int:
+    from doabench.results.leaderboard import build_leaderboards, stale_files, write_leaderboards
+
+    references = list(args.reference or [])
+    if not references and (Path(args.out) / DEFAULT_REFERENCE).is_file():
+        references = [str(Path(args.out) / DEFAULT_REFERENCE)]
+    files = build_leaderboards(args.results, references, command=_command(args))
+    if args.check:
+        stale = stale_files(files, args.out)
+        for name in stale:
+            print(f"stale or missing: {Path(args.out) / name}")
+        if not stale:
+            print(f"{len(files)} leaderboard files in {args.out} are up to date")
+        return 1 if stale else 0
+    written = write_leaderboards(files, args.out)
+    for path in written:
+        print(f"wrote {path}")
+    print(f"{len(files)} files in {args.out} ({len(written)} changed)")
+    return 0

@@ -1,0 +1,583 @@
+"""Leaderboards from committed results files: one Markdown table and one CSV per task, plus a summary.
+
+Every number in a generated table comes from a results JSON written by ``doabench run`` (or from a
+reference CSV of published numbers, which is marked as such). Each row names the file it came from
+(with its SHA-256) and the run's provenance: tracker id and version, weights hash, git commit,
+seeds, hardware and date, and the ``doabench run`` command that reproduces it.
+
+Output is deterministic: rows and files are sorted, numbers have fixed formats and nothing but the
+results' own dates appears, so regenerating from the same inputs gives byte-identical files.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from doabench.errors import InputError
+
+SCHEMA_PREFIX = "doabench.results/"
+SUPPORTED_SCHEMAS = ("doabench.results/1",)
+#: the metric rows are ranked by: the paper's tracking metric (Fig. 8, Table II: silent frames included)
+RANK_METRIC = "rmsae_all"
+PUBLISHED = "published"
+REPRODUCED = "doabench run"
+
+
+@dataclass(frozen=True)
+class RunFile:
+    """One results JSON: where it is (as shown in tables), its SHA-256 and its content."""
+
+    path: str
+    sha256: str
+    results: dict[str, Any]
+
+    @property
+    def task_id(self) -> str:
+        return str(self.results["task"]["id"])
+
+    @property
+    def tracker_id(self) -> str:
+        return str(self.results["tracker"].get("id") or self.results["tracker"].get("name"))
+
+
+@dataclass(frozen=True)
+class ReferenceRow:
+    """A published number (not reproduced by doabench) for one task, method and recording."""
+
+    task_id: str
+    recording: str
+    method: str
+    rmsae_all: float
+    source: str
+    note: str
+
+
+@dataclass
+class TaskBoard:
+    """What one task's table is built from."""
+
+    task_id: str
+    runs: list[RunFile] = field(default_factory=list)
+    references: list[ReferenceRow] = field(default_factory=list)
+
+
+# -- reading --------------------------------------------------------------------------------------
+def _display_path(path: Path) -> str:
+    """Path relative to the working directory when below it (tables must not embed a home folder)."""
+    try:
+        return path.resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return path.as_posix()
+
+
+def load_runs(folder: str | Path) -> list[RunFile]:
+    """Every ``*.json`` results file in ``folder`` (sorted by name). Other JSON files (no
+    ``schema`` key of the results family) are ignored; unreadable ones raise InputError."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"results folder {folder} does not exist")
+    runs = []
+    for path in sorted(folder.glob("*.json")):
+        if path.name.startswith("."):
+            continue
+        data = path.read_bytes()
+        try:
+            results = json.loads(data)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path} is not valid JSON ({exc}); fix or remove it") from None
+        schema = results.get("schema") if isinstance(results, dict) else None
+        if not (isinstance(schema, str) and schema.startswith(SCHEMA_PREFIX)):
+            continue
+        if schema not in SUPPORTED_SCHEMAS:
+            raise InputError(f"{path} has results schema {schema!r}; this doabench reads {', '.join(SUPPORTED_SCHEMAS)}")
+        for key in ("task", "tracker", "summary", "environment"):
+            if not isinstance(results.get(key), dict):
+                raise InputError(f"{path} lacks the {key!r} section of a results file")
+        runs.append(RunFile(_display_path(path), hashlib.sha256(data).hexdigest(), results))
+    return runs
+
+
+def load_references(path: str | Path) -> list[ReferenceRow]:
+    """Published rows from a reference CSV (columns ``task``, ``recording``, ``model``, ``input``,
+    ``resolution``, ``rmsae_all_deg``, ``status``, ``reference``; the LOCATA Table II layout).
+    ``task`` N becomes the task id ``locata-N``; ``all`` rows are kept with task id ``all``."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise InputError(f"reference table {path} cannot be read ({exc.strerror})") from None
+    rows = []
+    reader = csv.DictReader(io.StringIO(text))
+    needed = {"task", "recording", "model", "rmsae_all_deg"}
+    if not needed <= set(reader.fieldnames or ()):
+        raise InputError(f"reference table {path} needs columns {', '.join(sorted(needed))}")
+    for line, row in enumerate(reader, start=2):
+        try:
+            value = float(row["rmsae_all_deg"])
+        except ValueError:
+            raise InputError(f"{path} line {line}: rmsae_all_deg {row['rmsae_all_deg']!r} is not a number") from None
+        task = row["task"].strip()
+        method = row["model"].strip()
+        inp, res = row.get("input", "").strip(), row.get("resolution", "").strip()
+        details = ", ".join(x for x in (inp, "" if res in inp else res) if x)
+        where = ", ".join(f"{k} {row[k].strip()}" for k in ("split", "array", "frames") if row.get(k, "").strip())
+        rows.append(ReferenceRow(
+            task_id=task if task == "all" else f"locata-{task}",
+            recording=row["recording"].strip(),
+            method=f"{method} ({details})" if details else method,
+            rmsae_all=value,
+            source=row.get("reference", "").strip() or path.name,
+            note=(row.get("status", "").strip() or "published; not reproduced by doabench")
+            + (f" ({where})" if where else ""),
+        ))
+    return rows
+
+
+def collect(runs: Iterable[RunFile], references: Iterable[ReferenceRow] = ()) -> dict[str, TaskBoard]:
+    """Group runs and reference rows by task id (sorted)."""
+    boards: dict[str, TaskBoard] = {}
+    for run in runs:
+        boards.setdefault(run.task_id, TaskBoard(run.task_id)).runs.append(run)
+    for ref in references:
+        if ref.task_id != "all":
+            boards.setdefault(ref.task_id, TaskBoard(ref.task_id)).references.append(ref)
+    for board in boards.values():
+        board.runs.sort(key=_run_sort_key)
+    return dict(sorted(boards.items()))
+
+
+# -- formatting helpers -----------------------------------------------------------------------------
+def _num(x: Any, digits: int = 2) -> str:
+    if x is None:
+        return "—"
+    x = float(x)
+    return "—" if math.isnan(x) else f"{x:.{digits}f}"
+
+
+def _ci(ci: Any) -> str:
+    if not ci or len(ci) != 2 or any(v is None or math.isnan(float(v)) for v in ci):
+        return ""
+    return f"[{float(ci[0]):.2f}, {float(ci[1]):.2f}]"
+
+
+def _with_ci(value: Any, ci: Any) -> str:
+    text = _num(value)
+    interval = _ci(ci)
+    return f"{text} {interval}" if interval and text != "—" else text
+
+
+def _cell(text: Any) -> str:
+    """Markdown table cell text: pipes escaped, no line breaks."""
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def _csv_num(x: Any) -> str:
+    if x is None:
+        return ""
+    x = float(x)
+    return "" if math.isnan(x) else f"{x:.4f}"
+
+
+def _run_sort_key(run: RunFile) -> tuple:
+    value = run.results["summary"].get(RANK_METRIC)
+    value = float("inf") if value is None or math.isnan(float(value)) else float(value)
+    return (value, run.tracker_id, run.path)
+
+
+def safe_name(task_id: str) -> str:
+    """File name stem of a task's table: ``sim-grid``, ``file_data.h5`` for ``file:data.h5``."""
+    return re.sub(r"[^A-Za-z0-9.+-]+", "_", task_id).strip("_") or "task"
+
+
+# -- provenance ---------------------------------------------------------------------------------------
+def reproduce_command(results: dict[str, Any]) -> str:
+    """The ``doabench run`` command line that re-creates a results file (corpus paths as placeholders)."""
+    task = results["task"]
+    tracker = results["tracker"]
+    parts = ["doabench run", f"--tracker {tracker.get('id') or tracker.get('name')}", f"--task {task['id']}"]
+    for key, value in sorted((tracker.get("options") or {}).items()):
+        parts.append(f"--tracker-opt {key}={value}")
+    if task.get("episodes_run") is not None and task.get("episodes_run") != task.get("episodes_total"):
+        parts.append(f"--episodes {task['episodes_run']}")
+    features = results.get("features") or {}
+    if features.get("delays") not in (None, "nearest"):
+        parts.append(f"--delays {features['delays']}")
+    source = task.get("source") or {}
+    speech = source.get("speech") or {}
+    if speech.get("corpus") == "librispeech":
+        parts.append("--librispeech LIBRISPEECH_ROOT")
+    if task.get("kind") == "locata" or "locata_task" in source:
+        parts.append("--locata-root LOCATA_ROOT")
+        if source.get("split") not in (None, "dev"):
+            parts.append(f"--split {source['split']}")
+    if source.get("simulator") not in (None, "builtin"):
+        parts.append(f"--backend {source['simulator']}")
+    device = (results.get("environment") or {}).get("device")
+    if device not in (None, "cpu"):
+        parts.append(f"--device {device}")
+    return " ".join(parts)
+
+
+def provenance_line(label: str, run: RunFile) -> str:
+    """One Markdown list item naming everything a row's numbers depend on."""
+    r = run.results
+    env = r["environment"]
+    git = env.get("git") or {}
+    commit = git.get("commit")
+    commit_text = "unknown commit" if not commit else f"commit `{commit[:12]}`" + (
+        " with uncommitted changes in the working tree" if git.get("dirty") else "")
+    tracker = r["tracker"]
+    weights = tracker.get("weights_hash")
+    task = r["task"]
+    scene = (task.get("source") or {}).get("scene_overrides")
+    bits = [
+        f"`{run.path}` (sha256 `{run.sha256[:16]}`)",
+        f"tracker `{run.tracker_id}` version {tracker.get('version', '?')}, "
+        + (f"weights sha256 `{weights[:16]}`" if weights else "no weights"),
+        f"task `{task['id']}` v{task.get('version', '?')}, base seed {task.get('base_seed')} "
+        f"(per-episode seeds in the file), {task.get('episodes_run')}/{task.get('episodes_total')} episodes",
+        commit_text,
+        f"doabench {env.get('doabench', '?')}, Python {env.get('python', '?')}, torch {env.get('torch', '?')}, "
+        f"numpy {env.get('numpy', '?')}",
+        f"{env.get('cpu', '?')} ×{env.get('cpu_count', '?')}, device {env.get('device', '?')}"
+        + (f" ({env['gpu']})" if env.get("gpu") else ""),
+        f"date {env.get('date', '?')}",
+    ]
+    if r.get("wall_time_s") is not None:
+        bits.append(f"wall time {float(r['wall_time_s']) / 60:.1f} min")
+    if scene:
+        bits.append(f"scene overrides {json.dumps(scene, sort_keys=True)}")
+    return f"- **{label}**: " + "; ".join(bits) + f". Reproduce: `{reproduce_command(r)}`"
+
+
+# -- per-task tables ----------------------------------------------------------------------------------
+MAIN_COLUMNS = ("rank", "tracker", "causal", "params", "input", "episodes", "RMSAE all frames [95% CI]",
+                "RMSAE non-silent [95% CI]", "MAE", "median", "≤10°", "azimuth MAE", "run")
+
+
+def _recordings(board: TaskBoard) -> list[str]:
+    """Recording labels (LOCATA-style tasks: one column per recording), sorted numerically."""
+    labels = set()
+    for run in board.runs:
+        for row in run.results.get("episodes") or []:
+            if row.get("recording") is not None:
+                labels.add(str(row["recording"]))
+    for ref in board.references:
+        if ref.recording != "average":
+            labels.add(ref.recording)
+    return sorted(labels, key=lambda s: (0, int(s)) if s.isdigit() else (1, s))
+
+
+def _per_recording(run: RunFile) -> dict[str, float]:
+    return {str(row["recording"]): row.get("rmsae_all") for row in run.results.get("episodes") or []
+            if row.get("recording") is not None}
+
+
+def _input_text(results: dict[str, Any]) -> str:
+    features = results.get("features") or {}
+    kinds = list(features.get("kinds") or [])
+    res = features.get("resolution")
+    text = ", ".join(kinds)
+    if "srp" in kinds and res:
+        text = text.replace("srp", f"srp {res}", 1)
+    return text or "—"
+
+
+def _episodes_text(task: dict[str, Any]) -> str:
+    run, total = task.get("episodes_run"), task.get("episodes_total")
+    return f"{run}/{total}" + (" †" if run != total else "")
+
+
+def _main_row(rank: int, run: RunFile, label: str) -> list[str]:
+    r = run.results
+    s = r["summary"]
+    pooled = s.get("pooled") or {}
+    within = pooled.get("within_10")
+    return [
+        str(rank), f"`{run.tracker_id}`", "yes" if r.get("causal") else "no (offline)",
+        f"{int(r['tracker'].get('parameters') or 0):,}", _input_text(r), _episodes_text(r["task"]),
+        _with_ci(s.get("rmsae_all"), s.get("rmsae_all_ci95")),
+        _with_ci(s.get("rmsae_nonsilent"), s.get("rmsae_nonsilent_ci95")),
+        _num(pooled.get("mae")), _num(pooled.get("median")),
+        "—" if within is None else f"{100 * float(within):.0f}%", _num(pooled.get("azimuth_mae")), label,
+    ]
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    out = ["| " + " | ".join(_cell(h) for h in header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
+    return out
+
+
+def _grid_axes(runs: Sequence[RunFile]) -> tuple[list[float], list[float]]:
+    t60s, snrs = set(), set()
+    for run in runs:
+        for cell in (run.results.get("cells") or {}).values():
+            t60s.add(float(cell["t60"]))
+            snrs.add(float(cell["snr"]))
+    return sorted(t60s), sorted(snrs)
+
+
+def _cell_lookup(run: RunFile) -> dict[tuple[float, float], dict[str, Any]]:
+    return {(float(c["t60"]), float(c["snr"])): c for c in (run.results.get("cells") or {}).values()}
+
+
+def _g(x: float) -> str:
+    return f"{x:g}"
+
+
+def grid_section(board: TaskBoard, labels: dict[str, str]) -> list[str]:
+    """Per tracker, RMSAE per T60 × SNR cell (all frames and non-silent frames, with 95% CIs)."""
+    runs = [r for r in board.runs if r.results.get("cells")]
+    if not runs:
+        return []
+    t60s, snrs = _grid_axes(runs)
+    lines = ["", "## Per cell: T60 × SNR", "",
+             "RMSAE in degrees per grid cell with the 95% bootstrap interval over the cell's episodes. "
+             "*All* includes silent frames (paper Fig. 8), *non-silent* excludes them (paper Fig. 6)."]
+    for run in runs:
+        cells = _cell_lookup(run)
+        header = ["T60 [s]"] + [f"SNR {_g(s)} dB, {m}" for s in snrs for m in ("all", "non-silent")]
+        rows = []
+        for t in t60s:
+            row = [_g(t)]
+            for s in snrs:
+                c = cells.get((t, s))
+                if c is None:
+                    row += ["—", "—"]
+                else:
+                    row += [_with_ci(c.get("rmsae_all"), c.get("rmsae_all_ci95")),
+                            _with_ci(c.get("rmsae_nonsilent"), c.get("rmsae_nonsilent_ci95"))]
+            rows.append(row)
+        n = sorted({int(c.get("n_episodes", 0)) for c in cells.values()})
+        lines += ["", f"### `{run.tracker_id}` ({labels[run.path]})", "",
+                  f"Episodes per cell: {', '.join(map(str, n))}.", ""]
+        lines += _table(header, rows)
+    return lines
+
+
+def reference_section(board: TaskBoard, recordings: list[str]) -> list[str]:
+    """Published rows: per recording and the published average, clearly marked as not reproduced."""
+    if not board.references:
+        return []
+    methods: dict[str, dict[str, float]] = {}
+    for ref in board.references:
+        methods.setdefault(ref.method, {})[ref.recording] = ref.rmsae_all
+    header = ["method"] + [f"recording {r}" for r in recordings] + ["average (published)", "status"]
+    rows = []
+    for method, values in sorted(methods.items(), key=lambda kv: (kv[1].get("average", math.inf), kv[0])):
+        rows.append([method] + [_num(values.get(r)) for r in recordings] + [_num(values.get("average")),
+                                                                              "published, not reproduced"])
+    sources = sorted({ref.source for ref in board.references})
+    notes = sorted({ref.note for ref in board.references})
+    lines = ["", "## Published reference rows (not reproduced)", "",
+             "Copied from the literature for comparison; no doabench run produced these numbers. "
+             "RMSAE in degrees, all frames (silent frames included). Source: " + "; ".join(sources) + ".",
+             "Status in the reference file: " + "; ".join(notes) + ".", ""]
+    return lines + _table(header, rows)
+
+
+def task_markdown(board: TaskBoard, command: str) -> str:
+    """The Markdown page of one task."""
+    labels = {run.path: f"R{i}" for i, run in enumerate(board.runs, start=1)}
+    recordings = _recordings(board)
+    lines = [f"# Leaderboard: `{board.task_id}`", "",
+             "<!-- generated by `doabench leaderboard`; do not edit by hand -->", "",
+             f"Regenerate with `{command}`.", ""]
+    versions = sorted({str(r.results["task"].get("version")) for r in board.runs})
+    if len(versions) > 1:
+        lines += [f"**Warning**: results of several task versions ({', '.join(versions)}) are mixed here; "
+                  "numbers from different versions are not comparable.", ""]
+    if board.runs:
+        lines += [f"Ranked by RMSAE over all frames (degrees, pooled over every frame of every episode; "
+                  "ties by tracker id). Brackets: 95% bootstrap interval over episodes (1000 resamples). "
+                  "MAE, median, ≤10° and azimuth MAE are over non-silent frames. Definitions: docs/concepts.md.", ""]
+        rows = [_main_row(i, run, labels[run.path]) for i, run in enumerate(board.runs, start=1)]
+        lines += _table(MAIN_COLUMNS, rows)
+        if any(r.results["task"].get("episodes_run") != r.results["task"].get("episodes_total") for r in board.runs):
+            lines += ["", "† Ran only the first N episodes of the task (`--episodes N`, for time); "
+                          "not directly comparable with full runs."]
+        if recordings:
+            lines += ["", "### Per recording (RMSAE all frames)", ""]
+            header = ["tracker"] + [f"recording {r}" for r in recordings] + ["mean of recordings", "run"]
+            rec_rows = []
+            for run in board.runs:
+                per = _per_recording(run)
+                vals = [per.get(r) for r in recordings]
+                present = [float(v) for v in vals if v is not None]
+                mean = sum(present) / len(present) if present else None
+                rec_rows.append([f"`{run.tracker_id}`"] + [_num(v) for v in vals] + [_num(mean), labels[run.path]])
+            lines += _table(header, rec_rows)
+    else:
+        lines += ["No doabench results for this task yet: run `doabench run --tracker ... --task "
+                  f"{board.task_id} --out results/` and regenerate.", ""]
+    lines += grid_section(board, labels)
+    lines += reference_section(board, recordings)
+    if board.runs:
+        lines += ["", "## Runs", "",
+                  "Where each row's numbers come from. Per-episode rows and per-frame estimates are in the "
+                  "results file; its CSV twin has the per-episode metrics.", ""]
+        lines += [provenance_line(labels[run.path], run) for run in board.runs]
+    return "\n".join(lines) + "\n"
+
+
+CSV_COLUMNS = (
+    "status", "rank", "task", "task_version", "tracker", "tracker_name", "tracker_version", "causal", "parameters",
+    "features", "resolution", "episodes_run", "episodes_total", "rmsae_all", "rmsae_all_ci95_low",
+    "rmsae_all_ci95_high", "rmsae_nonsilent", "rmsae_nonsilent_ci95_low", "rmsae_nonsilent_ci95_high", "mae",
+    "median", "p90", "within_5", "within_10", "within_20", "within_30", "azimuth_mae", "recordings",
+    "results_file", "results_sha256", "git_commit", "git_dirty", "weights_hash", "base_seed", "cpu", "cpu_count",
+    "device", "torch", "doabench", "date", "command", "reference",
+)
+
+
+def _csv_text(rows: list[dict[str, Any]], columns: Sequence[str]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
+def task_csv(board: TaskBoard) -> str:
+    """One row per run (ranked) and per published method; per-recording values as ``rec=value;...``."""
+    rows = []
+    for rank, run in enumerate(board.runs, start=1):
+        r = run.results
+        s, env, task, tr = r["summary"], r["environment"], r["task"], r["tracker"]
+        pooled = s.get("pooled") or {}
+        all_ci = s.get("rmsae_all_ci95") or [None, None]
+        ns_ci = s.get("rmsae_nonsilent_ci95") or [None, None]
+        per = _per_recording(run)
+        rows.append({
+            "status": REPRODUCED, "rank": rank, "task": task["id"], "task_version": task.get("version"),
+            "tracker": run.tracker_id, "tracker_name": tr.get("name"), "tracker_version": tr.get("version"),
+            "causal": str(bool(r.get("causal"))).lower(), "parameters": tr.get("parameters"),
+            "features": " ".join((r.get("features") or {}).get("kinds") or []),
+            "resolution": (r.get("features") or {}).get("resolution") or "",
+            "episodes_run": task.get("episodes_run"), "episodes_total": task.get("episodes_total"),
+            "rmsae_all": _csv_num(s.get("rmsae_all")), "rmsae_all_ci95_low": _csv_num(all_ci[0]),
+            "rmsae_all_ci95_high": _csv_num(all_ci[1]), "rmsae_nonsilent": _csv_num(s.get("rmsae_nonsilent")),
+            "rmsae_nonsilent_ci95_low": _csv_num(ns_ci[0]), "rmsae_nonsilent_ci95_high": _csv_num(ns_ci[1]),
+            **{k: _csv_num(pooled.get(k)) for k in ("mae", "median", "p90", "within_5", "within_10", "within_20",
+                                                     "within_30", "azimuth_mae")},
+            "recordings": ";".join(f"{k}={_csv_num(per[k])}" for k in sorted(per, key=_rec_key)),
+            "results_file": run.path, "results_sha256": run.sha256,
+            "git_commit": (env.get("git") or {}).get("commit") or "",
+            "git_dirty": str((env.get("git") or {}).get("dirty")).lower(),
+            "weights_hash": tr.get("weights_hash") or "", "base_seed": task.get("base_seed"),
+            "cpu": env.get("cpu"), "cpu_count": env.get("cpu_count"), "device": env.get("device"),
+            "torch": env.get("torch"), "doabench": env.get("doabench"), "date": env.get("date"),
+            "command": reproduce_command(r), "reference": "",
+        })
+    methods: dict[str, list[ReferenceRow]] = {}
+    for ref in board.references:
+        methods.setdefault(ref.method, []).append(ref)
+    for method, refs in sorted(methods.items()):
+        avg = next((x.rmsae_all for x in refs if x.recording == "average"), None)
+        recs = sorted((x for x in refs if x.recording != "average"), key=lambda x: _rec_key(x.recording))
+        rows.append({"status": PUBLISHED, "task": board.task_id, "tracker": method, "rmsae_all": _csv_num(avg),
+                     "recordings": ";".join(f"{x.recording}={_csv_num(x.rmsae_all)}" for x in recs),
+                     "reference": f"{refs[0].source} ({refs[0].note})"})
+    return _csv_text(rows, CSV_COLUMNS)
+
+
+def _rec_key(s: str) -> tuple:
+    return (0, int(s), "") if s.isdigit() else (1, 0, s)
+
+
+CELL_COLUMNS = ("tracker", "t60", "snr", "n_episodes", "rmsae_all", "rmsae_all_ci95_low", "rmsae_all_ci95_high",
+                "rmsae_nonsilent", "rmsae_nonsilent_ci95_low", "rmsae_nonsilent_ci95_high", "results_file")
+
+
+def cells_csv(board: TaskBoard) -> str | None:
+    """Long-format per-cell CSV of a grid task (None when no run has cells)."""
+    rows = []
+    for run in sorted(board.runs, key=lambda r: (r.tracker_id, r.path)):
+        for (t, s), c in sorted(_cell_lookup(run).items()):
+            a = c.get("rmsae_all_ci95") or [None, None]
+            n = c.get("rmsae_nonsilent_ci95") or [None, None]
+            rows.append({"tracker": run.tracker_id, "t60": _g(t), "snr": _g(s), "n_episodes": c.get("n_episodes"),
+                         "rmsae_all": _csv_num(c.get("rmsae_all")), "rmsae_all_ci95_low": _csv_num(a[0]),
+                         "rmsae_all_ci95_high": _csv_num(a[1]), "rmsae_nonsilent": _csv_num(c.get("rmsae_nonsilent")),
+                         "rmsae_nonsilent_ci95_low": _csv_num(n[0]), "rmsae_nonsilent_ci95_high": _csv_num(n[1]),
+                         "results_file": run.path})
+    return _csv_text(rows, CELL_COLUMNS) if rows else None
+
+
+def summary_markdown(boards: dict[str, TaskBoard], runs: Sequence[RunFile], references: Sequence[ReferenceRow],
+                     command: str, reference_files: Sequence[str]) -> str:
+    """``summary.md``: one line per task (best run), published overall rows, and every input file."""
+    lines = ["# Leaderboards", "", "<!-- generated by `doabench leaderboard`; do not edit by hand -->", "",
+             f"Regenerate with `{command}`. One page and one CSV per task; grid tasks also get "
+             "`<task>-cells.csv`. Numbers in degrees (RMSAE over all frames, 95% bootstrap interval over episodes).",
+             ""]
+    rows = []
+    for task_id, board in boards.items():
+        best = board.runs[0] if board.runs else None
+        rows.append([f"[`{task_id}`]({safe_name(task_id)}.md)", str(len(board.runs)),
+                     f"`{best.tracker_id}`" if best else "—",
+                     _with_ci(best.results["summary"].get("rmsae_all"), best.results["summary"].get("rmsae_all_ci95"))
+                     if best else "—",
+                     str(len({r.method for r in board.references})) if board.references else "0"])
+    lines += _table(["task", "doabench runs", "best (RMSAE all)", "RMSAE all [95% CI]", "published methods"], rows)
+    overall = [r for r in references if r.task_id == "all"]
+    if overall:
+        lines += ["", "## Published overall averages (not reproduced)", "",
+                  "Mean over the LOCATA tasks as printed in the source: " + "; ".join(sorted({r.source for r in overall}))
+                  + ". No doabench run produced these numbers.", ""]
+        lines += _table(["method", "RMSAE all frames (published)"],
+                        [[r.method, _num(r.rmsae_all)] for r in sorted(overall, key=lambda r: (r.rmsae_all, r.method))])
+    lines += ["", "## Inputs", ""]
+    lines += [f"- `{run.path}` sha256 `{run.sha256}`" for run in runs]
+    lines += [f"- `{path}` (published reference rows)" for path in reference_files]
+    return "\n".join(lines) + "\n"
+
+
+# -- the whole job -------------------------------------------------------------------------------------
+def build_leaderboards(results_dir: str | Path, reference_files: Sequence[str | Path] = (),
+                       command: str = "doabench leaderboard") -> dict[str, str]:
+    """All generated files as ``{file name: text}`` (nothing written)."""
+    runs = load_runs(results_dir)
+    references = [row for path in reference_files for row in load_references(path)]
+    boards = collect(runs, references)
+    files: dict[str, str] = {}
+    for task_id, board in boards.items():
+        stem = safe_name(task_id)
+        files[f"{stem}.md"] = task_markdown(board, command)
+        files[f"{stem}.csv"] = task_csv(board)
+        cells = cells_csv(board)
+        if cells is not None:
+            files[f"{stem}-cells.csv"] = cells
+    files["summary.md"] = summary_markdown(boards, runs, references, command,
+                                           [_display_path(Path(p)) for p in reference_files])
+    return dict(sorted(files.items()))
+
+
+def write_leaderboards(files: dict[str, str], out_dir: str | Path) -> list[Path]:
+    """Write the files atomically; unchanged files are left untouched (their mtime too)."""
+    from doabench.results.files import write_text
+
+    out_dir = Path(out_dir)
+    written = []
+    for name, text in files.items():
+        path = out_dir / name
+        if path.exists() and path.read_text() == text:
+            continue
+        write_text(path, text)
+        written.append(path)
+    return written
+
+
+def stale_files(files: dict[str, str], out_dir: str | Path) -> list[str]:
+    """Names of generated files whose committed copy in ``out_dir`` differs or is missing."""
+    out_dir = Path(out_dir)
+    return [name for name, text in files.items()
+            if not (out_dir / name).is_file() or (out_dir / name).read_text() != text]

@@ -1,0 +1,383 @@
+"""The paper's figures from doabench results: RMSAE versus T60 (Figs. 6 and 8), one episode's
+track (Fig. 7), SRP-PHAT maps at several resolutions (Figs. 1 and 2) and training curves.
+
+Every function builds a matplotlib figure and writes it as PNG and PDF next to each other with
+atomic writes (:func:`save_figure`). Angles are plotted in degrees with doabench's conventions:
+elevation is the inclination from +z in ``[0, 180]``, azimuth ``atan2(y, x)`` in ``[-180, 180)``.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from doabench.errors import InputError
+
+METRICS = ("rmsae_all", "rmsae_nonsilent")
+METRIC_LABELS = {"rmsae_all": "RMSAE, all frames [deg]", "rmsae_nonsilent": "RMSAE, non-silent frames [deg]"}
+FORMATS = ("png", "pdf")
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only; never needs a display
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def output_paths(out: str | Path) -> list[Path]:
+    """``fig`` or ``fig.png`` -> ``[fig.png, fig.pdf]``."""
+    out = Path(out)
+    stem = out.with_suffix("") if out.suffix.lower() in (".png", ".pdf") else out
+    return [stem.with_name(f"{stem.name}.{ext}") for ext in FORMATS]
+
+
+def save_figure(fig, out: str | Path, dpi: int = 110) -> list[Path]:
+    """Write ``fig`` as PNG and PDF atomically; returns the paths. Dates are left out of the PDF
+    metadata so re-plotting the same data gives the same file."""
+    from doabench.results.files import atomic_path
+
+    paths = output_paths(out)
+    for path in paths:
+        with atomic_path(path) as tmp:
+            meta = {"CreationDate": None} if path.suffix == ".pdf" else {"Software": None}
+            fig.savefig(tmp, dpi=dpi, format=path.suffix[1:], metadata=meta, bbox_inches="tight")
+    _pyplot().close(fig)
+    return paths
+
+
+def load_results(path: str | Path) -> dict[str, Any]:
+    """A results JSON written by ``doabench run``; InputError with the reason otherwise."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"results file {path} does not exist") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path} is not valid JSON ({exc})") from None
+    if not (isinstance(data, dict) and str(data.get("schema", "")).startswith("doabench.results/")):
+        raise InputError(f"{path} is not a doabench results file (no doabench.results schema)")
+    return data
+
+
+def tracker_label(results: dict[str, Any]) -> str:
+    tracker = results.get("tracker") or {}
+    return str(tracker.get("id") or tracker.get("name") or "?")
+
+
+# -- Figs. 6 and 8: RMSAE versus T60 ------------------------------------------------------------------
+def grid_curves(results: dict[str, Any], snr: float, metric: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(t60s, values, ci (n, 2))`` of a grid run's cells at one SNR, sorted by T60."""
+    cells = [c for c in (results.get("cells") or {}).values() if math.isclose(float(c["snr"]), snr)]
+    cells.sort(key=lambda c: float(c["t60"]))
+    t60 = np.array([float(c["t60"]) for c in cells])
+    values = np.array([float(c[metric]) for c in cells])
+    ci = np.array([c.get(f"{metric}_ci95") or [np.nan, np.nan] for c in cells], float).reshape(-1, 2)
+    return t60, values, ci
+
+
+def available_snrs(runs: Sequence[dict[str, Any]]) -> list[float]:
+    return sorted({float(c["snr"]) for r in runs for c in (r.get("cells") or {}).values()})
+
+
+def plot_rmsae_vs_t60(runs: Sequence[dict[str, Any]], out: str | Path, snrs: Sequence[float] | None = None,
+                      metric: str = "rmsae_nonsilent", title: str | None = None) -> list[Path]:
+    """One panel per SNR, one line per run (tracker) with its 95% bootstrap band."""
+    if metric not in METRICS:
+        raise InputError(f"--metric must be one of {', '.join(METRICS)}, not {metric!r}")
+    grid_runs = [r for r in runs if r.get("cells")]
+    if not grid_runs:
+        raise InputError("none of the results files has per-cell results (run a grid task such as sim-grid)")
+    known = available_snrs(grid_runs)
+    snrs = list(snrs) if snrs else known
+    missing = [s for s in snrs if not any(math.isclose(s, k) for k in known)]
+    if missing:
+        raise InputError(f"no cells with SNR {', '.join(f'{s:g}' for s in missing)} dB; "
+                         f"the results have {', '.join(f'{s:g}' for s in known)}")
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(snrs), figsize=(4.6 * len(snrs), 3.8), sharey=True, squeeze=False)
+    ordered = sorted(grid_runs, key=tracker_label)
+    for ax, snr in zip(axes[0], snrs):
+        for i, run in enumerate(ordered):
+            t60, values, ci = grid_curves(run, snr, metric)
+            line, = ax.plot(t60, values, marker="os^Dv<>p*h"[i % 10], label=tracker_label(run))
+            if np.all(np.isfinite(ci)):
+                ax.fill_between(t60, ci[:, 0], ci[:, 1], color=line.get_color(), alpha=0.15, linewidth=0)
+        ax.set_title(f"SNR = {snr:g} dB")
+        ax.set_xlabel("T60 [s]")
+        ax.grid(True, alpha=0.3)
+    axes[0][0].set_ylabel(METRIC_LABELS[metric])
+    axes[0][0].set_ylim(bottom=0)
+    axes[0][-1].legend(fontsize="small")
+    task = grid_runs[0]["task"]["id"]
+    fig.suptitle(title or f"{task}: {METRIC_LABELS[metric].split(' [')[0]} versus T60 (bands: 95% bootstrap CI)")
+    fig.tight_layout()
+    return save_figure(fig, out)
+
+
+# -- Fig. 7: one episode ------------------------------------------------------------------------------
+def episode_frames(results: dict[str, Any], episode: int) -> dict[str, np.ndarray]:
+    """Stored per-frame times, estimates and truth of the ``episode``-th row of a results file."""
+    rows = results.get("episodes") or []
+    frames = results.get("frames")
+    if not frames:
+        raise InputError("this results file has no per-frame estimates (it was run with --no-frames)")
+    positions = [i for i, row in enumerate(rows) if int(row["episode"]) == episode]
+    if not positions:
+        have = ", ".join(str(r["episode"]) for r in rows[:10])
+        raise InputError(f"episode {episode} is not in the results file (it has episodes {have}"
+                         f"{', ...' if len(rows) > 10 else ''})")
+    f = frames[positions[0]]
+    return {"times": np.asarray(f["times"], float), "estimates": np.asarray(f["estimates"], float),
+            "truth": np.asarray(f["truth"], float), "row": rows[positions[0]],
+            "vad": None if f.get("vad") is None else np.asarray(f["vad"], bool)}
+
+
+def render_episode(task: str, episode: int, resolution: str | tuple[int, int], **source_options: Any):
+    """Re-render an episode through the task's environment: ``(episode, srp maps (T, θ, φ), truth)``."""
+    from doabench.envs.env import DoaEnv
+
+    env = DoaEnv(task, features=("srp",), resolution=resolution, **source_options)
+    if not 0 <= episode < env.n_episodes:
+        raise InputError(f"task {task!r} has {env.n_episodes} episodes; episode {episode} does not exist")
+    ep, feats, truth = env.load_episode(episode)
+    return ep, feats["srp"], truth, env.array
+
+
+def _degrees(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from doabench.geometry import unit_to_angles
+
+    el, az = unit_to_angles(np.asarray(u, float))
+    return np.degrees(el), np.degrees(az)
+
+
+def _break_wraps(t: np.ndarray, az: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Insert NaNs where azimuth wraps around ±180 so the line does not cross the whole plot."""
+    if len(az) < 2:
+        return t, az
+    jumps = np.where(np.abs(np.diff(az)) > 180)[0] + 1
+    return np.insert(t.astype(float), jumps, np.nan), np.insert(az.astype(float), jumps, np.nan)
+
+
+def _shade_silence(ax, times: np.ndarray, vad: np.ndarray) -> None:
+    if len(times) < 2:
+        return
+    step = float(np.median(np.diff(times)))
+    silent = ~np.asarray(vad, bool)
+    start = None
+    for i, s in enumerate(list(silent) + [False]):
+        if s and start is None:
+            start = i
+        elif not s and start is not None:
+            ax.axvspan(times[start] - step / 2, times[i - 1] + step / 2, color="0.85", linewidth=0, zorder=0)
+            start = None
+
+
+def plot_episode(results: dict[str, Any], episode: int, out: str | Path, maxima: np.ndarray | None = None,
+                 vad: np.ndarray | None = None, maxima_label: str = "SRP-PHAT maximum",
+                 title: str | None = None) -> list[Path]:
+    """Elevation and azimuth over time: truth (solid), estimate (dashed), map maxima (crosses),
+    grey silent frames. ``maxima (T, 3)`` and ``vad (T,)`` come from re-rendering the episode."""
+    f = episode_frames(results, episode)
+    t = f["times"]
+    el_t, az_t = _degrees(f["truth"])
+    el_e, az_e = _degrees(f["estimates"])
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, 1, figsize=(7.5, 5.0), sharex=True)
+    for ax, truth, est, index, name, lim in ((axes[0], el_t, el_e, 0, "elevation [deg]", (0, 180)),
+                                             (axes[1], az_t, az_e, 1, "azimuth [deg]", (-180, 180))):
+        if vad is not None:
+            _shade_silence(ax, t, vad)
+        if maxima is not None:
+            m = _degrees(maxima)[index]
+            ax.plot(t, m, "x", color="0.35", markersize=4, label=maxima_label)
+        ax.plot(*(_break_wraps(t, truth) if index else (t, truth)), "-", color="C3", linewidth=1.8, label="truth")
+        ax.plot(*(_break_wraps(t, est) if index else (t, est)), "--", color="C0", linewidth=1.5,
+                label=f"estimate ({tracker_label(results)})")
+        ax.set_ylabel(name)
+        ax.set_ylim(*lim)
+        ax.set_yticks(np.arange(lim[0], lim[1] + 1, 45))
+        ax.grid(True, alpha=0.3)
+    axes[1].set_xlabel("time [s]")
+    axes[0].legend(fontsize="small", loc="upper right", ncol=3)
+    row = f["row"]
+    scene = ", ".join(x for x in (
+        f"T60 {row['t60']:.2g} s" if row.get("t60") is not None else "",
+        f"SNR {row['snr']:.3g} dB" if row.get("snr") is not None else "") if x)
+    fig.suptitle(title or f"{row.get('task') or results['task']['id']} episode {episode}"
+                 + (f" ({scene})" if scene else "") + f": RMSAE {row['rmsae_all']:.1f}° all, "
+                 f"{row['rmsae_nonsilent']:.1f}° non-silent" + ("; grey = silent" if vad is not None else ""),
+                 fontsize="medium")
+    fig.tight_layout()
+    return save_figure(fig, out)
+
+
+# -- Figs. 1 and 2: SRP-PHAT maps -------------------------------------------------------------------
+def srp_maps(task: str, episode: int, frame: int, resolutions: Sequence[tuple[int, int]], delays: str = "nearest",
+             **source_options: Any) -> dict[str, Any]:
+    """Render one episode once and compute its SRP-PHAT map at ``frame`` for each resolution.
+
+    Returns ``maps`` ({resolution: map}), ``direction`` (true DOA (3,)), ``active`` (frame is
+    voice-active), ``episode`` and ``array``."""
+    from doabench.envs.env import DoaEnv
+    from doabench.features import FeatureExtractor
+    from doabench.features.observations import recording_features
+
+    env = DoaEnv(task, features=("srp",), resolution=resolutions[0], delays=delays, **source_options)
+    if not 0 <= episode < env.n_episodes:
+        raise InputError(f"task {task!r} has {env.n_episodes} episodes; episode {episode} does not exist")
+    ep = env.source.episode(episode)
+    truth = ep.frame_truth(env.frame_spec)
+    n = len(truth["directions"])
+    if not 0 <= frame < n:
+        raise InputError(f"episode {episode} of {task!r} has {n} frames; frame {frame} does not exist")
+    array = ep.array or env.array
+    maps = {}
+    for res in resolutions:
+        extractor = FeatureExtractor(array, kinds=("srp",), resolution=res, mode=delays, frame_spec=env.frame_spec)
+        maps[tuple(res)] = recording_features(extractor, ep.audio, ep.sample_vad, ("srp",), env.frame_spec)["srp"][frame]
+    return {"maps": maps, "direction": truth["directions"][frame], "active": bool(truth["vad"][frame]),
+            "episode": ep, "array": array}
+
+
+def plot_maps(maps: dict[tuple[int, int], np.ndarray], true_direction: np.ndarray, out: str | Path,
+              planar: bool = False, title: str = "") -> list[Path]:
+    """SRP-PHAT maps side by side; red dot: true DOA, black dot: the map's maximum (as in the paper)."""
+    from doabench.geometry import grid_angles
+
+    plt = _pyplot()
+    n = len(maps)
+    cols = min(n, 2)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.0 * rows), squeeze=False)
+    el_true, az_true = (float(v) for v in _degrees(true_direction))
+    for ax, ((n_theta, n_phi), m) in zip(axes.flat, maps.items()):
+        el, az = grid_angles(n_theta, n_phi, planar)
+        el, az = np.degrees(el), np.degrees(az)
+        d_el = el[1] - el[0]
+        d_az = 360.0 / n_phi
+        ax.imshow(m, origin="upper", aspect="auto", cmap="viridis", interpolation="nearest",
+                  extent=(az[0] - d_az / 2, az[-1] + d_az / 2, el[-1] + d_el / 2, el[0] - d_el / 2))
+        i, j = np.unravel_index(int(np.argmax(m)), m.shape)
+        ax.plot(az[j], el[i], "o", color="black", markersize=7, markeredgecolor="white", label="map maximum")
+        ax.plot(az_true, el_true, "o", color="red", markersize=7, markeredgecolor="white", label="true DOA")
+        ax.set_title(f"{n_theta}x{n_phi}")
+        ax.set_xlabel("azimuth [deg]")
+        ax.set_ylabel("elevation [deg]")
+        ax.set_xticks(np.arange(-180, 181, 90))
+        ax.set_yticks(np.arange(0, 181 if not planar else 91, 45))
+        ax.set_xlim(az[0] - d_az / 2, az[-1] + d_az / 2)
+    for ax in list(axes.flat)[n:]:
+        ax.set_visible(False)
+    axes.flat[0].legend(fontsize="x-small", loc="lower left")
+    if title:
+        fig.suptitle(title, fontsize="medium")
+    fig.tight_layout()
+    return save_figure(fig, out)
+
+
+# -- training curves -----------------------------------------------------------------------------
+def read_training_log(path: str | Path) -> dict[str, np.ndarray]:
+    """Columns of a ``doabench train`` ``log.csv`` as float arrays (empty cells are NaN)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise InputError(f"training log {path} does not exist") from None
+    rows = list(csv.DictReader(text.splitlines()))
+    if not rows or "epoch" not in rows[0]:
+        raise InputError(f"{path} is not a training log (needs a header with an 'epoch' column and rows)")
+
+    def value(x: str | None) -> float:
+        try:
+            return float(x) if x not in (None, "") else math.nan
+        except ValueError:
+            return math.nan
+
+    return {k: np.array([value(r.get(k)) for r in rows]) for k in rows[0]}
+
+
+def plot_training(logs: dict[str, dict[str, np.ndarray]], out: str | Path) -> list[Path]:
+    """Loss (log scale) and validation RMSAE per epoch, one colour per run."""
+    plt = _pyplot()
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    for i, (name, log) in enumerate(sorted(logs.items())):
+        epochs = log["epoch"]
+        color = f"C{i % 10}"
+        prefix = f"{name}: " if len(logs) > 1 else ""
+        for key, style, label in (("train_loss", "-", "train"), ("val_loss", "--", "validation")):
+            if key in log and np.any(np.isfinite(log[key])):
+                ax1.plot(epochs, log[key], style, color=color, marker=".", label=prefix + label)
+        for key, style, label in (("val_rmsae_all", "-", "all frames"), ("val_rmsae_nonsilent", "--", "non-silent")):
+            if key in log and np.any(np.isfinite(log[key])):
+                ax2.plot(epochs, log[key], style, color=color, marker=".", label=prefix + label)
+    ax1.set_xlabel("epoch")
+    ax1.set_ylabel("loss")
+    if any(np.nanmin(log.get(k, [np.nan])) > 0 for log in logs.values() for k in ("train_loss",)
+           if k in log and np.any(np.isfinite(log[k]))):
+        ax1.set_yscale("log")
+    ax2.set_xlabel("epoch")
+    ax2.set_ylabel("validation RMSAE [deg]")
+    for ax in (ax1, ax2):
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize="small")
+    fig.suptitle("training: " + ", ".join(sorted(logs)), fontsize="medium")
+    fig.tight_layout()
+    return save_figure(fig, out)
+
+
+# -- conventions figure (docs/concepts.md) ----------------------------------------------------------
+def plot_conventions(array, resolution: tuple[int, int], out: str | Path) -> list[Path]:
+    """The array frame and the SRP grid: microphones seen from above and from the side (axes of
+    the array frame), and the grid's points on the (azimuth, elevation) plane with the named
+    directions (+x, +y, up, down) marked."""
+    from doabench.geometry import grid_angles
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.9), gridspec_kw={"width_ratios": [1, 1, 1.7]})
+    pos = np.asarray(array.positions) * 100.0
+    for ax, (i, j, a, b) in zip(axes[:2], ((0, 1, "x", "y"), (0, 2, "x", "z"))):
+        ax.scatter(pos[:, i], pos[:, j], s=28, color="C0", zorder=3)
+        for k, p in enumerate(pos):
+            ax.annotate(str(k + 1), (p[i], p[j]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax.axhline(0, color="0.6", lw=0.8)
+        ax.axvline(0, color="0.6", lw=0.8)
+        span = float(np.abs(pos).max()) * 1.35
+        ax.annotate("", xy=(span * 0.9, 0), xytext=(0, 0), arrowprops={"arrowstyle": "->", "color": "C3"})
+        ax.annotate("", xy=(0, span * 0.9), xytext=(0, 0), arrowprops={"arrowstyle": "->", "color": "C3"})
+        ax.text(span * 0.92, 0, f"+{a}", color="C3", va="center")
+        ax.text(0, span * 0.93, f"+{b}", color="C3", ha="center")
+        ax.set_xlim(-span, span)
+        ax.set_ylim(-span, span)
+        ax.set_aspect("equal")
+        ax.set_xlabel(f"{a} [cm]")
+        ax.set_ylabel(f"{b} [cm]")
+        ax.set_title(f"array '{array.name}' seen {'from above' if j == 1 else 'from the side'}", fontsize="medium")
+    n_theta, n_phi = resolution
+    el, az = np.degrees(grid_angles(n_theta, n_phi, array.planar)[0]), np.degrees(grid_angles(n_theta, n_phi,
+                                                                                                array.planar)[1])
+    ax = axes[2]
+    A, E = np.meshgrid(az, el)
+    ax.scatter(A.ravel(), E.ravel(), s=12, color="C0", label=f"{n_theta}x{n_phi} grid points")
+    for name, (a, e) in {"+x (az 0°, el 90°)": (0, 90), "+y (az 90°)": (90, 90), "−x (az −180°)": (-180, 90),
+                         "−y (az −90°)": (-90, 90), "up, +z (el 0°)": (0, 0), "down, −z (el 180°)": (0, 180)}.items():
+        ax.plot(a, e, "o", ms=9, mfc="none", mec="C3")
+        ax.annotate(name, (a, e), fontsize=7, color="C3", xytext=(5, 4), textcoords="offset points")
+    ax.set_xlim(-190, 190)
+    ax.set_ylim(190, -10)
+    ax.set_xticks(np.arange(-180, 181, 45))
+    ax.set_yticks(np.arange(0, 181, 45))
+    ax.set_xlabel("azimuth φ = atan2(y, x) [deg]")
+    ax.set_ylabel("elevation θ from +z [deg]")
+    ax.set_title(f"SRP grid: θ_i = 180°·i/{n_theta - 1}, φ_j = −180° + 360°·j/{n_phi}", fontsize="medium")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="x-small", loc="lower right")
+    fig.tight_layout()
+    return save_figure(fig, out)
