@@ -131,8 +131,13 @@ def maps(args: argparse.Namespace) -> int:
     meta = found["episode"].metadata or {}
     scene = meta.get("scene") if isinstance(meta.get("scene"), dict) else {}
     bits = [f"{args.task} episode {args.episode}, frame {args.frame}"]
-    if scene.get("t60") is not None:
-        bits.append(f"T60 {scene['t60']:.2g} s")
+    t60 = scene.get("t60")
+    if t60 is None and meta.get("task"):
+        from doabench.envs.registry import get_task_spec
+
+        t60 = (get_task_spec(meta["task"]).params.get("cell") or {}).get("t60")  # grid cells fix T60
+    if t60 is not None:
+        bits.append(f"T60 {t60:.2g} s")
     if scene.get("snr_db") is not None:
         bits.append(f"SNR {scene['snr_db']:.3g} dB")
     out = args.out or f"{args.task}-maps-{args.episode}-{args.frame}"

@@ -1,0 +1,196 @@
+"""Leaderboards and plots: deterministic tables with CIs, provenance and published rows; figures
+written as PNG and PDF. Built from small synthetic results files so the tests stay fast."""
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from doabench.cli.main import main as cli
+from doabench.errors import InputError
+from doabench.results.leaderboard import build_leaderboards, load_runs, stale_files, write_leaderboards
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "leaderboards" / "locata-paper-table2.csv"
+
+
+def _results(tracker: str, rmsae: float, task: str = "sim-grid", episodes_run: int = 2, total: int = 2,
+             recordings: bool = False) -> dict:
+    """A minimal results dict in the runner's schema, two episodes, grid cells for sim-grid."""
+    rng = np.random.default_rng(abs(hash(tracker)) % 1000)
+    times = (np.arange(5) * 3072 + 2048) / 16000
+    truth = np.tile([[1.0, 0.0, 0.0]], (5, 1))
+    frames = [{"times": times.tolist(), "estimates": (truth + 0.1 * rng.standard_normal((5, 3))).tolist(),
+               "truth": truth.tolist(), "vad": [1, 1, 0, 1, 1]} for _ in range(episodes_run)]
+    rows = [{"episode": i, "task": "sim-t60-0.3-snr-30" if i == 0 else "sim-t60-0.9-snr-5", "seed": 100 + i,
+             "t60": 0.3 if i == 0 else 0.9, "snr": 30.0 if i == 0 else 5.0,
+             "recording": i + 1 if recordings else None, "rmsae_all": rmsae + i, "rmsae_nonsilent": rmsae - 1 + i}
+            for i in range(episodes_run)]
+    pooled = {"rmsae_all": rmsae, "rmsae_nonsilent": rmsae - 1, "mae": rmsae / 2, "median": rmsae / 3,
+              "p90": rmsae * 1.5, "within_5": 0.1, "within_10": 0.5, "within_20": 0.8, "within_30": 0.9,
+              "azimuth_mae": rmsae / 4, "n_frames": 10, "n_nonsilent": 8, "n_episodes": episodes_run}
+    cells = {}
+    if task == "sim-grid":
+        cells = {"sim-t60-0.3-snr-30": {"t60": 0.3, "snr": 30.0, "rmsae_all": rmsae - 2, "rmsae_nonsilent": rmsae - 3,
+                                        "rmsae_all_ci95": [rmsae - 4, rmsae], "rmsae_nonsilent_ci95": [rmsae - 5, rmsae - 1],
+                                        "n_episodes": 1},
+                 "sim-t60-0.9-snr-5": {"t60": 0.9, "snr": 5.0, "rmsae_all": rmsae + 2, "rmsae_nonsilent": rmsae + 1,
+                                       "rmsae_all_ci95": [rmsae, rmsae + 4], "rmsae_nonsilent_ci95": [rmsae - 1, rmsae + 3],
+                                       "n_episodes": 1}}
+    name, _, spec = tracker.partition(":")
+    return {
+        "schema": "doabench.results/1",
+        "task": {"id": task, "version": 0, "kind": "simulated", "gym_id": f"doabench/{task}-v0", "base_seed": 7,
+                 "episodes_run": episodes_run, "episodes_total": total,
+                 "source": {"simulator": "builtin", "speech": {"corpus": "librispeech", "subset": "test-other"}}},
+        "tracker": {"id": tracker, "name": name, "version": "1", "spec": spec or None, "causal": True,
+                    "features": ["srp"], "resolution": spec or "16x32", "parameters": 0,
+                    "receptive_field_frames": 1, "weights_hash": None, "options": {}},
+        "causal": True,
+        "features": {"kinds": ["srp"], "resolution": spec or "16x32", "delays": "nearest",
+                     "frame": {"window": 4096, "hop": 3072, "fs": 16000}},
+        "environment": {"doabench": "0.1.0", "git": {"commit": "a" * 40, "dirty": False}, "python": "3.11.7",
+                        "torch": "2.13.0+cpu", "numpy": "2.0", "cpu": "Test CPU", "cpu_count": 2, "device": "cpu",
+                        "date": "2026-01-01T00:00:00+00:00"},
+        "summary": {"rmsae_all": rmsae, "rmsae_nonsilent": rmsae - 1, "rmsae_all_ci95": [rmsae - 2, rmsae + 2],
+                    "rmsae_nonsilent_ci95": [rmsae - 3, rmsae + 1], "pooled": pooled, "episode_mean": pooled},
+        "cells": cells, "wall_time_s": 60.0, "episodes": rows, "frames": frames,
+    }
+
+
+@pytest.fixture
+def results_dir(tmp_path: Path) -> Path:
+    d = tmp_path / "results"
+    d.mkdir()
+    for tracker, value in (("srp-max:8x16", 30.0), ("srp-kalman:32x64", 12.5)):
+        (d / f"sim-grid__{tracker.replace(':', '_')}.json").write_text(json.dumps(_results(tracker, value)))
+    (d / "sim-demo__srp-max.json").write_text(json.dumps(_results("srp-max", 5.0, "sim-demo", 1, 4)))
+    (d / "locata-3__srp-max.json").write_text(json.dumps(_results("srp-max", 20.0, "locata-3", 2, 2, True)))
+    (d / "notes.json").write_text(json.dumps({"something": "else"}))  # not a results file: ignored
+    return d
+
+
+def test_tables_ranked_with_cis_provenance_and_cells(results_dir: Path) -> None:
+    files = build_leaderboards(results_dir, [REFERENCE], command="doabench leaderboard")
+    assert {"sim-grid.md", "sim-grid.csv", "sim-grid-cells.csv", "sim-demo.md", "locata-3.md", "locata-1.md",
+            "summary.md"} <= set(files)
+    page = files["sim-grid.md"]
+    # ranked by RMSAE over all frames, with bootstrap intervals on every RMSAE
+    assert page.index("`srp-kalman:32x64`") < page.index("`srp-max:8x16`")
+    assert "12.50 [10.50, 14.50]" in page and "11.50 [9.50, 13.50]" in page
+    # per-cell T60 x SNR tables per tracker
+    assert "### `srp-max:8x16` (R2)" in page and "| 0.9 |" in page and "SNR 30 dB, non-silent" in page
+    # provenance footnotes: file and its hash, commit, seeds, hardware, date, reproduce command
+    assert "sim-grid__srp-max_8x16.json` (sha256 `" in page and "commit `aaaaaaaaaaaa`" in page
+    assert "base seed 7" in page and "Test CPU ×2" in page and "2026-01-01T00:00:00+00:00" in page
+    assert "`doabench run --tracker srp-max:8x16 --task sim-grid --librispeech LIBRISPEECH_ROOT`" in page
+    assert "Regenerate with `doabench leaderboard`" in page
+    # limited runs are marked and reproducible with --episodes
+    demo = files["sim-demo.md"]
+    assert "1/4 †" in demo and "--episodes 1" in demo
+    cells = files["sim-grid-cells.csv"].splitlines()
+    assert cells[0].startswith("tracker,t60,snr") and len(cells) == 5
+
+
+def test_published_rows_are_marked_and_separate(results_dir: Path) -> None:
+    files = build_leaderboards(results_dir, [REFERENCE])
+    page = files["locata-3.md"]
+    published = page.split("## Published reference rows (not reproduced)")[1]
+    assert "Cross3D (SRP-PHAT maps, 32x64) | 12.43 | 8.36 | 7.69 | 9.49 | published, not reproduced" in published
+    ours = page.split("## Published")[0]
+    assert "Cross3D" not in ours and "`srp-max`" in ours
+    assert "### Per recording" in ours and "| `srp-max` | 20.00 | 21.00 | — | 20.50 | R1 |" in ours
+    csv_lines = files["locata-3.csv"].splitlines()
+    assert csv_lines[1].startswith("doabench run,1,locata-3")
+    assert sum(line.startswith("published,") for line in csv_lines) == 9
+    # LOCATA tasks without doabench runs still show the published rows
+    assert "No doabench results for this task yet" in files["locata-1.md"]
+
+
+def test_regeneration_is_byte_identical_and_check_detects_staleness(results_dir: Path, tmp_path: Path,
+                                                                     capsys) -> None:
+    out = tmp_path / "boards"
+    args = ["leaderboard", "--results", str(results_dir), "--out", str(out), "--reference", str(REFERENCE)]
+    assert cli(args) == 0
+    first = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert cli(args) == 0
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == first
+    assert cli(args + ["--check"]) == 0
+    changed = _results("srp-max:8x16", 3.0)
+    (results_dir / "sim-grid__srp-max_8x16.json").write_text(json.dumps(changed))
+    capsys.readouterr()
+    assert cli(args + ["--check"]) == 1
+    assert "sim-grid.md" in capsys.readouterr().out
+
+
+def test_bad_results_file_is_a_one_line_error(results_dir: Path, tmp_path: Path, capsys) -> None:
+    (results_dir / "broken.json").write_text("{not json")
+    with pytest.raises(InputError, match="broken.json is not valid JSON"):
+        load_runs(results_dir)
+    assert cli(["leaderboard", "--results", str(results_dir), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("doabench leaderboard: error:") and "\n" not in err
+    assert cli(["leaderboard", "--results", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_committed_leaderboards_match_committed_results() -> None:
+    """leaderboards/ is generated from results/: a new or changed results file needs a regeneration."""
+    import os
+
+    here = os.getcwd()
+    os.chdir(ROOT)  # tables show paths relative to the working directory
+    try:
+        files = build_leaderboards("results", ["leaderboards/locata-paper-table2.csv"],
+                                   command="doabench leaderboard --results results --out leaderboards")
+        stale = stale_files(files, "leaderboards")
+    finally:
+        os.chdir(here)
+    assert not stale, f"stale leaderboards {stale}: run `doabench leaderboard` from the repository root"
+
+
+def test_plots_write_png_and_pdf(results_dir: Path, tmp_path: Path) -> None:
+    grid = [str(results_dir / "sim-grid__srp-max_8x16.json"), str(results_dir / "sim-grid__srp-kalman_32x64.json")]
+    out = tmp_path / "fig"
+    assert cli(["plot", "rmsae-vs-t60", *grid, "--snr", "30", "--metric", "rmsae_all", "--out", str(out / "t60")]) == 0
+    assert cli(["plot", "episode", grid[0], "--episode", "1", "--no-render", "--out", str(out / "ep")]) == 0
+    log = tmp_path / "runs" / "demo" / "log.csv"
+    log.parent.mkdir(parents=True)
+    log.write_text("epoch,phase_snr,batch_size,lr,train_loss,val_loss,val_rmsae_all,val_rmsae_nonsilent\n"
+                   "1,30,5,0.001,0.5,0.6,40,35\n2,30,5,0.001,0.3,0.4,30,25\n")
+    assert cli(["plot", "training", str(log), "--out", str(out / "train")]) == 0
+    for stem in ("t60", "ep", "train"):
+        png, pdf = out / f"{stem}.png", out / f"{stem}.pdf"
+        assert png.read_bytes()[:4] == b"\x89PNG" and pdf.read_bytes()[:4] == b"%PDF"
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # atomic writes leave no temporaries
+
+
+def test_plot_errors_are_one_line(results_dir: Path, tmp_path: Path, capsys) -> None:
+    f = str(results_dir / "sim-grid__srp-max_8x16.json")
+    assert cli(["plot", "rmsae-vs-t60", f, "--snr", "20", "--out", str(tmp_path / "x")]) == 2
+    assert "no cells with SNR 20 dB" in capsys.readouterr().err
+    assert cli(["plot", "episode", f, "--episode", "9", "--no-render", "--out", str(tmp_path / "x")]) == 2
+    assert "episode 9 is not in the results file" in capsys.readouterr().err
+    no_frames = copy.deepcopy(_results("srp-max", 5.0))
+    no_frames["frames"] = None
+    (tmp_path / "nf.json").write_text(json.dumps(no_frames))
+    assert cli(["plot", "episode", str(tmp_path / "nf.json"), "--episode", "0", "--no-render"]) == 2
+    assert "--no-frames" in capsys.readouterr().err
+
+
+def test_plot_maps_and_rendered_episode(tmp_path: Path) -> None:
+    """Maps at two resolutions and an episode plot with maxima re-rendered from the task (embedded speech)."""
+    import doabench
+
+    doabench.register_task(ROOT / "docs" / "examples" / "quiet-office.toml")
+    out = tmp_path / "maps"
+    assert cli(["plot", "maps", "--task", "quiet-office", "--episode", "0", "--frame", "6",
+                "--resolutions", "4x8,8x16", "--out", str(out)]) == 0
+    assert (tmp_path / "maps.png").stat().st_size > 1000 and (tmp_path / "maps.pdf").is_file()
+    results = doabench.run(tracker="srp-max:4x8", task="quiet-office", episodes=1, progress=False)
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(results, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+    assert cli(["plot", "episode", str(path), "--episode", "0", "--out", str(tmp_path / "ep")]) == 0
+    assert (tmp_path / "ep.png").is_file()
