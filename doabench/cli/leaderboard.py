@@ -24,10 +24,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _command(args: argparse.Namespace) -> str:
     """The command line printed in the tables: the folders as given, so re-running it regenerates them."""
-    parts = ["doabench leaderboard", "--results", args.results, "--out", args.out]
+    parts = ["--results", args.results, "--out", args.out]
     for ref in args.reference or []:
         parts += ["--reference", ref]
-    return " ".join(shlex.quote(p) if p not in ("doabench leaderboard",) else p for p in parts)
+    return "doabench leaderboard " + " ".join(shlex.quote(p) for p in parts)
 
 
 def main(args: argparse.Namespace) -> int:

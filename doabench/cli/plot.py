@@ -95,8 +95,7 @@ def episode(args: argparse.Namespace) -> int:
 
         res_text = args.resolution or (results.get("features") or {}).get("resolution") or "32x64"
         res = parse_resolution(res_text)
-        kwargs = {k: v for k, v in corpus_kwargs(_with_device(args)).items()}
-        _, srp, truth, array = render_episode(task, args.episode, res, **kwargs)
+        _, srp, truth, array = render_episode(task, args.episode, res, **corpus_kwargs(args))
         if len(truth["directions"]) != len(stored["truth"]) or not np.allclose(
                 truth["directions"], stored["truth"], atol=1e-5):
             # The episode is re-created from its seed; a mismatch means the code or corpus changed since the run.
@@ -110,10 +109,6 @@ def episode(args: argparse.Namespace) -> int:
     return _done(plot_episode(results, args.episode, out, maxima=maxima, vad=vad, maxima_label=label))
 
 
-def _with_device(args: argparse.Namespace) -> argparse.Namespace:
-    return argparse.Namespace(**{**vars(args), "device": None})
-
-
 def maps(args: argparse.Namespace) -> int:
     from doabench.geometry import parse_resolution
     from doabench.results.plots import plot_maps, srp_maps
@@ -124,7 +119,7 @@ def maps(args: argparse.Namespace) -> int:
 
         raise InputError("--resolutions needs at least one N_THETAxN_PHI value")
     found = srp_maps(args.task, args.episode, args.frame, resolutions, delays=args.delays,
-                     **corpus_kwargs(_with_device(args)))
+                     **corpus_kwargs(args))
     if not found["active"]:
         print(f"doabench plot: warning: frame {args.frame} is silent (its maps are zero); pick a voice-active frame",
               file=sys.stderr)
