@@ -114,7 +114,7 @@ def plot_rmsae_vs_t60(runs: Sequence[dict[str, Any]], out: str | Path, snrs: Seq
         ax.grid(True, alpha=0.3)
     axes[0][0].set_ylabel(METRIC_LABELS[metric])
     axes[0][0].set_ylim(bottom=0)
-    axes[0][-1].legend(fontsize="small")
+    axes[0][-1].legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0))  # outside: many lines
     task = grid_runs[0]["task"]["id"]
     fig.suptitle(title or f"{task}: {METRIC_LABELS[metric].split(' [')[0]} versus T60 (bands: 95% bootstrap CI)")
     fig.tight_layout()
