@@ -121,6 +121,7 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     else:
         tracker_text = tracker.name
     spec = get_task_spec(task)
+    provenance = environment(device)  # taken before the work: the code that runs is the code recorded
     wall_start = time.perf_counter()
     env = make_env_for(tracker, task, device=device, delays=delays, **env_options)
     n_total = env.n_episodes
@@ -164,7 +165,7 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
         bar.close()
     wall_s = time.perf_counter() - wall_start
     records = [done[i] for i in indices]
-    return _results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, device, delays)
+    return _results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays)
 
 
 def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
@@ -200,7 +201,7 @@ def _load_partial(path: str | Path | None, config_hash: str) -> dict[int, dict]:
 
 
 def _results(spec, tracker: Tracker, tracker_text: str, tracker_options, env: DoaEnv, records: list[dict],
-             wall_s: float, device, delays) -> dict[str, Any]:
+             wall_s: float, provenance: dict[str, Any], delays) -> dict[str, Any]:
     rows = [r["row"] for r in records]
     per_frame = [(np.asarray(r["errors"], float), np.asarray(r["az_errors"], float), np.asarray(r["vad"], bool))
                  for r in records]
@@ -226,7 +227,7 @@ def _results(spec, tracker: Tracker, tracker_text: str, tracker_options, env: Do
         "causal": bool(tracker.causal),
         "features": {"kinds": list(env.features), "resolution": "%dx%d" % env.resolution, "delays": delays,
                      "frame": env.frame_spec.to_dict()},
-        "environment": environment(device),
+        "environment": provenance,
         "summary": summary,
         "cells": cells,
         "wall_time_s": wall_s,
