@@ -13,24 +13,16 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 
 import numpy as np
 import torch
 
+from doabench.results.provenance import cpu_name as _cpu_name
 from doabench.acoustics.scenes import SceneDistribution, sample_scene
 from doabench.acoustics.simulators import get_simulator
 
 
-def _cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def main() -> None:

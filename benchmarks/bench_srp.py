@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import time
 
 import numpy as np
 import torch
 
+from doabench.results.provenance import cpu_name
 from doabench.arrays import get_array
 from doabench.features import SRPPHAT
 from doabench.features import functional as F
@@ -33,14 +33,6 @@ from doabench.geometry import grid_angles
 RESOLUTIONS = ((4, 8), (8, 16), (16, 32), (32, 64), (64, 128))
 
 
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def time_call(fn, runs: int, budget_s: float) -> tuple[float, float, int]:
