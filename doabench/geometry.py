@@ -36,6 +36,7 @@ def angles_to_unit(elevation: ArrayLike, azimuth: ArrayLike) -> ArrayLike:
 def unit_to_angles(u: ArrayLike) -> tuple[ArrayLike, ArrayLike]:
     """Vectors ``(..., 3)`` (any norm > 0) -> (elevation, azimuth) in radians, each ``(...)``."""
     lib = _lib(u)
+    u = _prescale(u)  # huge components would overflow rho
     x, y, z = u[..., 0], u[..., 1], u[..., 2]
     rho = lib.sqrt(x * x + y * y)
     elevation = lib.arctan2(rho, z) if lib is np else torch.atan2(rho, z)
@@ -43,11 +44,44 @@ def unit_to_angles(u: ArrayLike) -> tuple[ArrayLike, ArrayLike]:
     return elevation, azimuth
 
 
-def normalize(u: ArrayLike, eps: float = 1e-12) -> ArrayLike:
-    """Scale vectors ``(..., 3)`` to unit norm."""
+def _prescale(u: ArrayLike) -> ArrayLike:
+    """``u`` divided by its largest absolute component along the last axis (rows that are all zero
+    stay zero), so that squaring the components neither overflows (1e200) nor underflows (1e-200)."""
     if isinstance(u, torch.Tensor):
-        return u / u.norm(dim=-1, keepdim=True).clamp_min(eps)
-    return u / np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), eps)
+        m = u.abs().amax(dim=-1, keepdim=True)
+        return u / torch.where(m > 0, m, torch.ones_like(m))
+    u = np.asarray(u)
+    if not np.issubdtype(u.dtype, np.floating):
+        u = u.astype(np.float64)
+    m = np.max(np.abs(u), axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore"):
+        return u / np.where(m > 0, m, 1)
+
+
+def robust_norm(u: ArrayLike) -> ArrayLike:
+    """Euclidean norm over the last axis without overflow or underflow: ``max|u_i| * |u / max|u_i||``."""
+    if isinstance(u, torch.Tensor):
+        m = u.abs().amax(dim=-1)
+        return m * _prescale(u).norm(dim=-1)
+    u = np.asarray(u)
+    if not np.issubdtype(u.dtype, np.floating):
+        u = u.astype(np.float64)
+    m = np.max(np.abs(u), axis=-1)
+    with np.errstate(over="ignore"):
+        return m * np.linalg.norm(_prescale(u), axis=-1)
+
+
+def normalize(u: ArrayLike, eps: float = 1e-12) -> ArrayLike:
+    """Scale vectors ``(..., 3)`` to unit norm.
+
+    Each vector is first divided by its largest absolute component, so a valid direction with huge
+    (``[1e200, 0, 0]``) or tiny components is normalised to the direction it is instead of
+    overflowing to ``inf`` (and then to a zero vector). All-zero vectors stay zero.
+    """
+    v = _prescale(u)
+    if isinstance(v, torch.Tensor):
+        return v / v.norm(dim=-1, keepdim=True).clamp_min(eps)
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), eps)
 
 
 def great_circle_error(u: ArrayLike, v: ArrayLike) -> ArrayLike:
@@ -59,9 +93,11 @@ def great_circle_error(u: ArrayLike, v: ArrayLike) -> ArrayLike:
     if isinstance(u, torch.Tensor) or isinstance(v, torch.Tensor):
         u = torch.as_tensor(u)
         v = torch.as_tensor(v, dtype=u.dtype, device=u.device)
+        u, v = _prescale(u), _prescale(v)
         return torch.atan2(torch.linalg.cross(u, v, dim=-1).norm(dim=-1), (u * v).sum(-1))
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
+    u, v = _prescale(u), _prescale(v)  # no overflow in the cross and dot products of huge vectors
     return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.sum(u * v, axis=-1))
 
 

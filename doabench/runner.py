@@ -19,6 +19,7 @@ import numpy as np
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
 from doabench.errors import ConfigError, TrackerError
+from doabench.geometry import normalize
 from doabench.metrics import aggregate, pooled_from_rows, azimuth_errors_deg, bootstrap_ci, episode_metrics, frame_errors_deg
 from doabench.results.files import to_json
 from doabench.results.provenance import environment
@@ -39,10 +40,9 @@ def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
         raise TrackerError(f"tracker {tracker.name!r} returned shape {a.shape} at frame {frame}; expected (3,)")
     if not np.all(np.isfinite(a)):
         raise TrackerError(f"tracker {tracker.name!r} returned a non-finite direction {a} at frame {frame}")
-    n = np.linalg.norm(a)
-    if n < 1e-9:
+    if not np.any(a):
         raise TrackerError(f"tracker {tracker.name!r} returned a zero vector at frame {frame}")
-    return a / n
+    return normalize(a)  # scaled by its largest component first: [1e200, 0, 0] is the x axis, not 0
 
 
 def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
@@ -50,11 +50,11 @@ def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
     a = np.asarray(d, dtype=np.float64)
     if a.shape != (n_frames, 3):
         raise TrackerError(f"tracker {tracker.name!r} returned shape {a.shape}; expected ({n_frames}, 3)")
-    bad = ~np.all(np.isfinite(a), axis=1) | (np.linalg.norm(a, axis=1) < 1e-9)
+    bad = ~np.all(np.isfinite(a), axis=1) | ~np.any(a, axis=1)
     if bad.any():
         raise TrackerError(f"tracker {tracker.name!r} returned a non-finite or zero direction at frame "
                            f"{int(np.argmax(bad))}")
-    return a / np.linalg.norm(a, axis=1, keepdims=True)
+    return normalize(a)
 
 
 def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays: str = "nearest",

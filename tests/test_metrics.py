@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from doabench.geometry import angles_to_unit, great_circle_error
 from doabench.metrics import aggregate, azimuth_errors_deg, bootstrap_ci, episode_metrics, frame_errors_deg
@@ -95,3 +96,22 @@ def test_pooled_from_rows_equals_pooling_the_frames():
     assert from_rows["rmsae_all"] == pytest.approx(pooled["rmsae_all"])
     assert from_rows["rmsae_nonsilent"] == pytest.approx(pooled["rmsae_nonsilent"])
     assert bootstrap_ci([(e, v) for e, _, v in per_frame], "rmsae_all") == pytest.approx(from_rows["rmsae_all_ci95"])
+
+
+@pytest.mark.parametrize("scale", [1e200, 1e-200, 1e300])
+def test_huge_or_tiny_direction_is_scored_as_the_direction_it_is(scale):
+    """[1e200, 0, 0] is the x axis: its norm overflows, so a naive normalisation made it [0, 0, 0]
+    and scored 0 deg against any truth."""
+    from doabench.geometry import normalize, robust_norm
+
+    truth = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    est = np.array([[scale, 0.0, 0.0], [scale, 0.0, 0.0]])
+    np.testing.assert_allclose(frame_errors_deg(est, truth), [90.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(normalize(est), [[1, 0, 0], [1, 0, 0]])
+    np.testing.assert_allclose(normalize(np.array([scale, scale, 0.0])), [2 ** -0.5, 2 ** -0.5, 0])
+    assert robust_norm(np.array([3 * scale, 4 * scale, 0.0])) == pytest.approx(5 * scale)
+    m = episode_metrics(est, truth, np.ones(2, bool))
+    assert m["rmsae_all"] == pytest.approx(np.sqrt(90.0 ** 2 / 2))
+    assert m["azimuth_mae"] == pytest.approx(45.0)
+    t = normalize(torch.tensor([[scale, 0.0, 0.0]], dtype=torch.float64))
+    torch.testing.assert_close(t, torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64))

@@ -135,3 +135,27 @@ def test_check_env_passes_for_every_locata_task(task_id, locata_fixture):
     env = gymnasium.make(doabench.get_task_spec(task_id).gym_id, features=("srp", "srp_max"), resolution=(4, 8),
                          locata_root=str(locata_fixture))
     check_env(env.unwrapped, skip_render_check=True)
+
+
+class _HugeTracker(doabench.Tracker):
+    name = "huge"
+
+    def __init__(self, scale):
+        super().__init__()
+        self.scale = scale
+
+    def step(self, observation):
+        return np.array([self.scale, 0.0, 0.0])
+
+
+def test_a_huge_direction_scores_as_the_direction_it_is():
+    """[1e200, 0, 0] used to overflow to a zero vector and score 0 deg (ranking first)."""
+    unit = run_task(_HugeTracker(1.0), "sim-demo", episodes=1, progress=False, scene_overrides=QUICK_SCENE)
+    huge = run_task(_HugeTracker(1e200), "sim-demo", episodes=1, progress=False, scene_overrides=QUICK_SCENE)
+    assert unit["summary"]["rmsae_all"] > 1.0
+    assert huge["summary"]["rmsae_all"] == pytest.approx(unit["summary"]["rmsae_all"])
+
+
+def test_a_zero_direction_is_refused():
+    with pytest.raises(TrackerError, match="huge"):
+        run_task(_HugeTracker(0.0), "sim-demo", episodes=1, progress=False, scene_overrides=QUICK_SCENE)

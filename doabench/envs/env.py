@@ -167,8 +167,9 @@ class DoaEnv(gymnasium.Env):
         if self._t >= self._n_frames:
             raise gymnasium.error.ResetNeeded("the episode is over; call reset()")
         a = np.asarray(action, dtype=np.float64)
-        if a.shape != (3,) or not np.all(np.isfinite(a)):
-            raise InputError(f"action must be a finite direction vector of shape (3,), got {a.shape} {a!r}")
+        if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.any(a):
+            raise InputError(f"action must be a finite, non-zero direction vector of shape (3,), got {a.shape} "
+                             f"{a!r}")
         truth = self._truth["directions"][self._t]
         error = float(great_circle_error(a, truth))
         info = {"frame": self._t, "truth": truth.copy(), "vad": bool(self._truth["vad"][self._t]),
