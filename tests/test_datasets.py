@@ -310,3 +310,23 @@ def test_cli_make_dataset_and_info(task_dir, tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["index_range"] == [1, 1]
     assert main(["make-dataset", "--task", TASK, "--features", "mfcc", "--out", str(tmp_path / "e.h5")]) == 2
     assert "unknown dataset feature" in capsys.readouterr().err
+
+
+def test_replay_of_nan_truth_is_refused_without_results(reference, tmp_path, capsys):
+    bad = tmp_path / "nan.h5"
+    shutil.copy(reference, bad)
+    with h5py.File(bad, "r+") as f:
+        d = f["episodes/000001/truth/directions"]
+        values = d[()]
+        values[2] = np.nan
+        d[...] = values
+    with DatasetFile(bad) as f:
+        f.truth(0)  # the other episodes are fine
+        with pytest.raises(InputError, match="episode 1"):
+            f.truth(1)
+    out = tmp_path / "res"
+    code = main(["run", "--tracker", "srp-max:8x16", "--task", f"file:{bad}", "--out", str(out), "--quiet"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists() or not list(out.glob("*.json"))

@@ -1,5 +1,6 @@
 """Task and tracker registries, spec parsing, CLI list/describe and error messages."""
 import json
+import os
 
 import gymnasium
 import numpy as np
@@ -104,3 +105,39 @@ def test_srp_kalman_smooths_outliers_on_the_grid():
     assert moved < 0.2 * jump
     # a silent (all-zero) map holds the estimate
     assert np.allclose(k.step({"srp": np.zeros((8, 16), np.float32), "vad": 0}), after)
+
+
+@pytest.mark.parametrize("episodes", [0, -3])
+def test_a_task_spec_with_no_episodes_is_refused(episodes):
+    from doabench.envs.spec import spec_from_dict
+
+    with pytest.raises(ConfigError):
+        spec_from_dict({"id": "x-empty", "version": 0, "kind": "simulated", "episodes": episodes})
+    with pytest.raises(ConfigError):
+        spec_from_dict({"id": "x-grid", "version": 0, "kind": "simulated",
+                        "grid": {"t60": [0.2], "snr": [5], "episodes_per_cell": episodes}})
+
+
+def test_broken_files_on_the_task_path_only_break_their_own_task(tmp_path):
+    import subprocess
+    import sys
+
+    good = 'id = "{id}"\nversion = 0\nkind = "simulated"\nepisodes = 1\n'
+    (tmp_path / "x-good.toml").write_text(good.format(id="x-good"))
+    (tmp_path / "x-bad.toml").write_text("id = \"x-bad\"\nversion = [\n")
+    (tmp_path / "x-dup.toml").write_text(good.format(id="sim-demo"))
+    env = {**os.environ, "DOABENCH_TASK_PATH": os.pathsep.join([str(tmp_path), str(tmp_path / "missing")])}
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "doabench.cli.main", *args], capture_output=True, text=True,
+                              env=env, cwd=tmp_path)
+
+    r = cli("--version")
+    assert r.returncode == 0 and "Traceback" not in r.stderr
+    assert "x-bad.toml" in r.stderr and "missing" in r.stderr and "x-dup.toml" in r.stderr
+    r = cli("describe", "--task", "x-good")
+    assert r.returncode == 0, r.stderr
+    for task in ("x-bad", "sim-demo"):
+        r = cli("describe", "--task", task)
+        assert r.returncode == 2 and "Traceback" not in r.stderr
+        assert r.stderr.strip().splitlines()[-1].startswith("doabench describe: error:")

@@ -17,6 +17,31 @@ from doabench.errors import InputError, NotFoundError
 from doabench.framing import FrameSpec
 
 
+def check_truth(truth: dict[str, np.ndarray], where: str) -> None:
+    """Refuse truth that would score as NaN: non-numeric, non-finite, zero or misshapen directions,
+    non-finite times, a VAD of another length."""
+    try:
+        d = np.asarray(truth["directions"], np.float64)
+        times = np.asarray(truth["times"], np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: truth is not numeric") from None
+    if d.ndim != 2 or d.shape[1] != 3:
+        raise InputError(f"{where}: truth/directions has shape {d.shape}; expected (frames, 3)")
+    n = len(d)
+    for key in ("elevation", "azimuth", "times", "vad"):
+        if key in truth and np.shape(truth[key]) != (n,):
+            raise InputError(f"{where}: {key} has shape {np.shape(truth[key])}; expected ({n},) like the directions")
+    bad = ~np.all(np.isfinite(d), axis=1) | ~np.any(d, axis=1)
+    if bad.any():
+        raise InputError(f"{where}: truth/directions holds {int(bad.sum())} non-finite or zero vector(s) "
+                         f"(first at frame {int(np.argmax(bad))}); the file is corrupt")
+    if not np.all(np.isfinite(times)):
+        raise InputError(f"{where}: truth/times holds non-finite values; the file is corrupt")
+    for key in ("elevation", "azimuth"):
+        if key in truth and not np.all(np.isfinite(np.asarray(truth[key], np.float64))):
+            raise InputError(f"{where}: truth/{key} holds non-finite values; the file is corrupt")
+
+
 class DatasetFile:
     """A read-only dataset file. ``DatasetFile(path)``; use as a context manager or call close().
 
@@ -131,6 +156,7 @@ class DatasetFile:
         g = self.group(index)
         out = {k: self._load(g, f"truth/{k}", index) for k in TRUTH_KEYS}
         out["vad"] = np.asarray(self._load(g, "vad", index), bool)
+        check_truth(out, f"{self.path}: episode {index}")
         return out
 
     def metadata(self, index: int) -> dict[str, Any]:

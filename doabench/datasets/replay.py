@@ -97,9 +97,14 @@ class DatasetEpisodes:
             raise InputError(f"{self.path} stores no audio ({', '.join(self.file.items)}); only its stored "
                              "features can be replayed")
         g = self.file.group(index)
+        sample_directions = np.asarray(g["sample_directions"][()], np.float64)
+        if (sample_directions.ndim != 2 or sample_directions.shape[1] != 3
+                or not np.all(np.isfinite(sample_directions)) or not np.all(np.any(sample_directions, axis=1))):
+            raise InputError(f"{self.path}: episode {index}: sample_directions holds non-finite or zero vectors "
+                             f"(shape {sample_directions.shape}); the file is corrupt")
         return Episode(audio=g["audio"][()], fs=int(g.attrs.get("fs", self.file.frames.fs)),
                        sample_vad=np.asarray(g["sample_vad"][()], bool),
-                       sample_directions=np.asarray(g["sample_directions"][()], np.float64),
+                       sample_directions=sample_directions,
                        metadata=self._metadata(index), array=self._array(index))
 
     def stored_names(self, kinds: Sequence[str], resolution: tuple[int, int]) -> list[str] | None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import sys
 from importlib import resources
 from pathlib import Path
 from typing import Callable
@@ -22,6 +23,13 @@ _TASKS: dict[str, TaskSpec] = {}
 _LOADED = False
 # Dynamic task families resolved from their id prefix, e.g. "file:data.h5" (dataset replay).
 _PREFIX_RESOLVERS: dict[str, Callable[[str], TaskSpec]] = {}
+# Task ids whose spec file could not be loaded at start-up -> the one-line reason. Asking for one
+# of them raises that reason; every other task and command keeps working.
+_BROKEN: dict[str, str] = {}
+
+
+def _warn(message: str) -> None:
+    print(f"doabench: warning: {message}", file=sys.stderr)
 
 
 def _builtin_spec_files() -> list[Path]:
@@ -30,12 +38,18 @@ def _builtin_spec_files() -> list[Path]:
 
 
 def _user_spec_files() -> list[Path]:
+    """The TOML files of the DOABENCH_TASK_PATH folders; an entry that is not a folder is skipped
+    with a warning (it must not break ``import doabench`` and every command)."""
     files: list[Path] = []
     for entry in filter(None, os.environ.get("DOABENCH_TASK_PATH", "").split(os.pathsep)):
         folder = Path(entry)
         if not folder.is_dir():
-            raise ConfigError(f"DOABENCH_TASK_PATH entry {folder} is not a folder")
-        files.extend(sorted(folder.glob("*.toml")))
+            _warn(f"DOABENCH_TASK_PATH entry {folder} is not a folder; skipped")
+            continue
+        try:
+            files.extend(sorted(folder.glob("*.toml")))
+        except OSError as exc:
+            _warn(f"DOABENCH_TASK_PATH entry {folder} cannot be read ({exc.strerror or exc}); skipped")
     return files
 
 
@@ -45,8 +59,31 @@ def _ensure_loaded() -> None:
         return
     _LOADED = True
     for path in _builtin_spec_files() + _user_spec_files():
-        for spec in load_spec_file(path):
-            register_task(spec)
+        _load_file_at_startup(path)
+
+
+def _load_file_at_startup(path: Path) -> None:
+    """Register one spec file; a broken one (bad TOML, bad spec, an id another file has) is skipped
+    with a one-line warning naming it, and only its task fails, when asked for."""
+    try:
+        specs = load_spec_file(path)
+    except (ConfigError, OSError, UnicodeDecodeError) as exc:
+        reason = str(exc) if isinstance(exc, ConfigError) else f"task spec {path} cannot be read ({exc})"
+        _warn(f"{reason}; skipped")
+        _BROKEN.setdefault(path.stem, reason)
+        return
+    for spec in specs:
+        old = _TASKS.get(spec.id)
+        if old is not None and old.source_file != spec.source_file and old != spec:
+            reason = (f"task id {spec.id!r} is defined twice, by {old.source_file} and by {spec.source_file}; "
+                      "rename one")
+            _warn(f"{reason}; {spec.source_file} skipped")
+            _BROKEN[spec.id] = reason
+            del _TASKS[spec.id]
+            continue
+        if spec.id in _BROKEN:
+            continue
+        register_task(spec)
 
 
 def register_task(spec: TaskSpec | dict | str | Path) -> list[TaskSpec]:
@@ -96,6 +133,8 @@ def get_task_spec(task_id: str | TaskSpec) -> TaskSpec:
         key = key[len("doabench/"):].rsplit("-v", 1)[0]
     if key in _TASKS:
         return _TASKS[key]
+    if key in _BROKEN:
+        raise ConfigError(_BROKEN[key])
     close = difflib.get_close_matches(key, list(_TASKS), n=3, cutoff=0.6)
     hint = f"; did you mean {', '.join(close)}?" if close else ""
     raise NotFoundError(f"unknown task {task_id!r}{hint} (`doabench list tasks` shows them all)")

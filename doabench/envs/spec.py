@@ -105,6 +105,12 @@ def spec_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> list[Task
         )
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"task spec {source}: {exc}") from None
+    for key in ("episodes", "version", "base_seed"):
+        value = data.get(key, 0)
+        if isinstance(value, bool) or not isinstance(value, int) and not (isinstance(value, float) and value.is_integer()):
+            raise ConfigError(f"task spec {source}: {key} must be an integer, got {value!r}")
+    if base.episodes < 1:
+        raise ConfigError(f"task spec {source}: episodes must be at least 1, got {base.episodes}")
     if "grid" not in params:
         return [base]
     return _expand_grid(base, source)
@@ -119,6 +125,8 @@ def _expand_grid(base: TaskSpec, source: str) -> list[TaskSpec]:
         pattern = str(grid.get("cell_id", "sim-t60-{t60}-snr-{snr}"))
     except (KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"task spec {source}: [grid] needs t60, snr and episodes_per_cell ({exc})") from None
+    if per_cell < 1:
+        raise ConfigError(f"task spec {source}: [grid] episodes_per_cell must be at least 1, got {per_cell}")
     cells = []
     params_wo_grid = {k: v for k, v in base.params.items() if k != "grid"}
     for index, (t60, snr) in enumerate((t, s) for t in t60s for s in snrs):
