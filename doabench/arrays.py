@@ -119,16 +119,47 @@ def load_array_file(path: str | Path) -> MicArray:
             data = json.loads(text)
     except Exception as exc:  # any parse failure is the user's file
         raise ConfigError(f"array file {path}: cannot parse ({type(exc).__name__}: {exc})") from None
+    return _array_from_mapping(data, path)
+
+
+ARRAY_FILE_KEYS = ("name", "planar", "positions")
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _array_from_mapping(data, path: Path) -> MicArray:
+    """Validate an array file's contents strictly: a wrong type or an unknown key names the file and
+    the field (a string ``"false"`` is not a boolean, ``true`` is not a coordinate)."""
     if not isinstance(data, dict) or "positions" not in data:
         raise ConfigError(f"array file {path}: expected a mapping with a 'positions' list")
-    try:
-        pos = np.asarray(data["positions"], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ConfigError(f"array file {path}: 'positions' must be numbers [[x, y, z], ...]") from None
+    unknown = sorted(str(k) for k in data if k not in ARRAY_FILE_KEYS)
+    if unknown:
+        raise ConfigError(f"array file {path}: unknown field(s) {', '.join(map(repr, unknown))}; "
+                          f"expected {', '.join(ARRAY_FILE_KEYS)}")
+    rows = data["positions"]
+    if not isinstance(rows, list) or not rows:
+        raise ConfigError(f"array file {path}: field 'positions' must be a non-empty list of [x, y, z]")
+    for i, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != 3:
+            raise ConfigError(f"array file {path}: field 'positions[{i}]' must be a list of [x, y, z], got {row!r}"
+                              if isinstance(row, list) else
+                              f"array file {path}: field 'positions[{i}]' must be [x, y, z], got {row!r}")
+        for j, v in enumerate(row):
+            if not _is_number(v):
+                raise ConfigError(f"array file {path}: field 'positions[{i}][{j}]' must be a number (metres), "
+                                  f"got {v!r}")
+    pos = np.asarray(rows, dtype=np.float64)
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name.strip():
+        raise ConfigError(f"array file {path}: field 'name' must be a non-empty string, got {name!r}")
     planar = data.get("planar")
     if planar is None:
-        planar = bool(pos.ndim == 2 and pos.shape[-1] == 3 and np.ptp(pos[:, 2]) < 1e-9)
-    return MicArray(str(data.get("name", path.stem)), pos, bool(planar), source=str(path))
+        planar = bool(np.ptp(pos[:, 2]) < 1e-9)
+    elif not isinstance(planar, bool):
+        raise ConfigError(f"array file {path}: field 'planar' must be true or false, got {planar!r}")
+    return MicArray(name, pos, planar, source=str(path))
 
 
 def get_array(name_or_path: str | Path | MicArray) -> MicArray:

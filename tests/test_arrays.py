@@ -99,3 +99,25 @@ def test_grid_and_angle_conventions():
     assert grid_angles(8, 16, planar=True)[0][-1] == pytest.approx(np.pi / 2)
     u = angles_to_unit(np.array([0.0, np.pi / 2]), np.array([0.0, np.pi / 2]))
     np.testing.assert_allclose(u, [[0, 0, 1], [0, 1, 0]], atol=1e-12)  # el = inclination from +z
+
+
+@pytest.mark.parametrize("content,field", [
+    ({"planar": "false", "positions": [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]]}, "planar"),
+    ({"planar": 0, "positions": [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]]}, "planar"),
+    ({"positions": [[0, 0, 0], [True, 0, 0], [0, 0.1, 0]]}, "positions[1][0]"),
+    ({"positions": [[0, 0, 0], ["0.1", 0, 0], [0, 0.1, 0]]}, "positions[1][0]"),
+    ({"positions": [[0, 0, 0], [0.1, 0, 0]], "plannar": True}, "plannar"),
+    ({"name": 7, "positions": [[0, 0, 0], [0.1, 0, 0]]}, "name"),
+    ({"positions": "0 0 0"}, "positions"),
+])
+def test_array_file_types_are_validated_strictly(tmp_path, content, field):
+    """A string "false" used to be taken as True, `true` as a 1 m coordinate, unknown keys ignored."""
+    f = tmp_path / "strict.json"
+    f.write_text(json.dumps(content))
+    with pytest.raises(ConfigError) as exc:
+        load_array_file(f)
+    assert "strict.json" in str(exc.value) and field in str(exc.value)
+    y = tmp_path / "strict.yaml"
+    y.write_text("planar: 'false'\npositions: [[0, 0, 0], [0.1, 0, 0]]\n")
+    with pytest.raises(ConfigError, match="planar"):
+        load_array_file(y)
