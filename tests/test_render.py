@@ -155,3 +155,54 @@ def test_cli_simulate_from_a_task(tmp_path, capsys):
     capsys.readouterr()
     assert cli(["simulate", "--episode", "0", "--out", str(tmp_path / "x")]) == 2
     assert "--episode needs --task" in capsys.readouterr().err
+
+
+def test_simulate_force_replaces_only_a_folder_simulate_wrote(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("DOABENCH_LIBRISPEECH", raising=False)
+    args = ["simulate", "--t60", "0.2", "--snr", "20", "--duration", "1", "--force", "--out"]
+    user_file = tmp_path / "notes.txt"
+    user_file.write_text("precious")
+    assert cli(args + [str(user_file)]) == 2
+    assert user_file.read_text() == "precious"
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "thesis.tex").write_text("precious")
+    assert cli(args + [str(other)]) == 2
+    assert (other / "thesis.tex").read_text() == "precious" and len(list(other.iterdir())) == 1
+    sim = tmp_path / "sim"
+    assert cli(args + [str(sim)]) == 0
+    first = (sim / "scene.json").read_text()
+    assert cli(args[:-1] + ["--seed", "5", "--out", str(sim)]) == 0  # an earlier simulate's folder is replaced
+    assert (sim / "scene.json").read_text() != first
+    (sim / "extra.txt").write_text("mine")
+    assert cli(args + [str(sim)]) == 2 and (sim / "extra.txt").exists()
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    capsys.readouterr()
+    assert cli(args + ["."]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not list(work.iterdir()) and sorted(p.name for p in tmp_path.iterdir()) == [
+        "notes.txt", "other", "sim", "work"]
+
+
+def test_outputs_respect_the_umask(tmp_path, monkeypatch):
+    import os
+    import stat
+
+    from doabench.results.files import write_json
+
+    monkeypatch.delenv("DOABENCH_LIBRISPEECH", raising=False)
+    old = os.umask(0o022)
+    try:
+        out = tmp_path / "sim"
+        assert cli(["simulate", "--t60", "0.2", "--snr", "20", "--duration", "1", "--out", str(out)]) == 0
+        assert stat.S_IMODE(out.stat().st_mode) == 0o755
+        for name in ("audio.wav", "truth.csv", "scene.json"):
+            assert stat.S_IMODE((out / name).stat().st_mode) == 0o644
+        assert stat.S_IMODE(write_json(tmp_path / "r.json", {"a": 1}).stat().st_mode) == 0o644
+        os.umask(0o077)
+        assert stat.S_IMODE(write_json(tmp_path / "s.json", {"a": 1}).stat().st_mode) == 0o600
+    finally:
+        os.umask(old)

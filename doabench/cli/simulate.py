@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from doabench.errors import ConfigError
+from doabench.results.files import apply_umask
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -144,13 +145,53 @@ def write_outputs(folder: Path, episode, scene_info: dict) -> None:
     (folder / "scene.json").write_text(json.dumps(info, indent=1) + "\n")
 
 
+SIMULATE_FILES = frozenset({"audio.wav", "truth.csv", "scene.json"})
+
+
+def _written_by_simulate(folder: Path) -> bool:
+    """True when ``folder`` holds only what an earlier ``simulate`` wrote (its three files, with a
+    scene.json that simulate made)."""
+    try:
+        names = {p.name for p in folder.iterdir()}
+        if not names or not names <= SIMULATE_FILES or "scene.json" not in names:
+            return False
+        if any(not (folder / n).is_file() or (folder / n).is_symlink() for n in names):
+            return False
+        info = json.loads((folder / "scene.json").read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(info, dict) and "doabench_version" in info and isinstance(info.get("audio"), dict)
+
+
+def check_out(out: Path, force: bool) -> None:
+    """Refuse an ``--out`` that simulate must not write or replace, before any work is done.
+
+    It must name a folder of its own (not ``.``, a parent of the working folder or ``/``); an existing
+    one is replaced only with ``--force`` and only when an earlier ``simulate`` wrote it; anything
+    else (a user's file, a folder of other files) is never deleted."""
+    resolved = out.expanduser().resolve()
+    cwd = Path.cwd().resolve()
+    if not resolved.name or resolved == cwd or resolved in cwd.parents:
+        raise ConfigError(f"--out {out} is the working folder or one of its parents; name a new folder for "
+                          "the outputs, e.g. --out sim1")
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise ConfigError(f"--out {out} exists and is not a folder; it is never replaced (pick another --out)")
+    if not out.exists() or not any(out.iterdir()):
+        return
+    if not force:
+        raise ConfigError(f"output folder {out} already exists; use --force to replace it")
+    if not _written_by_simulate(out):
+        raise ConfigError(f"output folder {out} holds files simulate did not write; --force replaces only a "
+                          "folder an earlier simulate wrote (audio.wav, truth.csv, scene.json)")
+
+
 def _publish(tmp: Path, out: Path, force: bool) -> None:
-    """Move the finished ``tmp`` folder to ``out`` (replacing it only with ``force``)."""
+    """Move the finished ``tmp`` folder to ``out`` (replacing it only with ``force``, and only
+    when an earlier simulate wrote it)."""
+    check_out(out, force)  # again: the folder may have changed during the simulation
     if out.exists():
-        if out.is_dir() and not any(out.iterdir()):
+        if not any(out.iterdir()):
             out.rmdir()
-        elif not force:
-            raise ConfigError(f"output folder {out} already exists; use --force to replace it")
         else:
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
             out.replace(old / out.name)
@@ -168,8 +209,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.arrays import get_array
 
     out = Path(args.out)
-    if out.exists() and not args.force and not (out.is_dir() and not any(out.iterdir())):
-        raise ConfigError(f"output folder {out} already exists; use --force to replace it")
+    check_out(out, args.force)
     simulator = get_simulator(args.backend, device=args.device)
     if args.episode is not None:
         scene, source, dist = _task_episode(args)
@@ -190,6 +230,7 @@ def main(args: argparse.Namespace) -> int:
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     try:
         write_outputs(tmp, episode, info)
+        apply_umask(tmp, folder=True)  # mkdtemp makes it 0700 whatever the umask
         _publish(tmp, out, args.force)
     finally:
         if tmp.exists():
