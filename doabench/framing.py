@@ -30,10 +30,12 @@ class FrameSpec:
     def __post_init__(self) -> None:
         if self.hop is None:
             object.__setattr__(self, "hop", 3 * self.window // 4)
-        if self.window < 2 or self.hop < 1:
-            from doabench.errors import ConfigError
+        from doabench.errors import ConfigError
 
+        if self.window < 2 or self.hop < 1:
             raise ConfigError(f"invalid frame settings: window={self.window}, hop={self.hop}")
+        if self.fs < 1:
+            raise ConfigError(f"invalid frame settings: the sample rate must be a positive number of Hz, got {self.fs}")
 
     def n_frames(self, n_samples: int) -> int:
         return n_frames(n_samples, self.window, self.hop)

@@ -20,6 +20,9 @@ import torch
 ArrayLike = Union[np.ndarray, torch.Tensor]
 
 SPEED_OF_SOUND = 343.0  # m/s, the value the issues fix
+# Bound of SRP grids: delay tables and maps grow with the grid (100000x100000 would allocate 37 GiB).
+MAX_GRID_SIDE = 1024
+MAX_GRID_POINTS = 256 * 512
 
 
 def _lib(x: ArrayLike):
@@ -117,6 +120,9 @@ def parse_resolution(text: str) -> tuple[int, int]:
         raise ConfigError(f"resolution {text!r} is not of the form N_THETAxN_PHI, e.g. 16x32") from None
     if n_theta < 2 or n_phi < 2:
         raise ConfigError(f"resolution {text!r}: both N_theta and N_phi must be at least 2")
+    if n_theta > MAX_GRID_SIDE or n_phi > MAX_GRID_SIDE or n_theta * n_phi > MAX_GRID_POINTS:
+        raise ConfigError(f"resolution {text!r} is too fine: at most {MAX_GRID_SIDE} per side and "
+                          f"{MAX_GRID_POINTS} grid points (e.g. 256x512), got {n_theta * n_phi}")
     return n_theta, n_phi
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
-from doabench.errors import ConfigError, TrackerError
+from doabench.errors import ConfigError, DoabenchError, TrackerError
 from doabench.geometry import normalize
 from doabench.metrics import aggregate, pooled_from_rows, azimuth_errors_deg, bootstrap_ci, episode_metrics, frame_errors_deg
 from doabench.results.files import to_json
@@ -57,6 +57,18 @@ def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
     return normalize(a)
 
 
+def _guarded(tracker: Tracker, what: str, fn: Callable, *args: Any) -> Any:
+    """Call a tracker method; an exception it raises becomes a one-line TrackerError naming it."""
+    try:
+        return fn(*args)
+    except DoabenchError:
+        raise
+    except Exception as exc:
+        from doabench.trackers.registry import one_line
+
+        raise TrackerError(f"tracker {tracker.name!r} raised in {what}: {one_line(exc)}") from None
+
+
 def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays: str = "nearest",
                  **env_options: Any) -> DoaEnv:
     """The environment configured with the features, resolution and frames a tracker needs."""
@@ -74,16 +86,19 @@ def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
     obs, info = env.reset(options={"episode": index})
     n = info["n_frames"]
     episode = env._episode
-    tracker.reset(episode.array or env.array, frame_spec=env.frame_spec, task=env.spec_task.id,
-                  metadata=episode.metadata)
+    _guarded(tracker, f"reset() of episode {index}",
+             lambda: tracker.reset(episode.array or env.array, frame_spec=env.frame_spec, task=env.spec_task.id,
+                                   metadata=episode.metadata))
     start = time.perf_counter()
     if tracker.causal:
         estimates = np.zeros((n, 3))
         for t in range(n):
-            estimates[t] = check_direction(tracker, tracker.step(obs), t)
+            estimates[t] = check_direction(tracker, _guarded(tracker, f"step() at frame {t} of episode {index}",
+                                                             tracker.step, obs), t)
             obs, _, terminated, _, _ = env.step(estimates[t].astype(np.float32))
     else:
-        estimates = check_directions(tracker, tracker.track(env.offline_episode()), n)
+        estimates = check_directions(tracker, _guarded(tracker, f"track() of episode {index}", tracker.track,
+                                                       env.offline_episode()), n)
     tracker_s = time.perf_counter() - start
     truth = env.episode_truth()
     return {"estimates": estimates, "truth": truth["directions"], "vad": truth["vad"], "times": truth["times"],

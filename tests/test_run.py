@@ -159,3 +159,40 @@ def test_a_huge_direction_scores_as_the_direction_it_is():
 def test_a_zero_direction_is_refused():
     with pytest.raises(TrackerError, match="huge"):
         run_task(_HugeTracker(0.0), "sim-demo", episodes=1, progress=False, scene_overrides=QUICK_SCENE)
+
+
+def _one_line_error(capsys):
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    return err
+
+
+def test_bad_run_inputs_are_one_line_errors_checked_first(tmp_path, monkeypatch, capsys):
+    plugin = tmp_path / "plugins"
+    plugin.mkdir()
+    (plugin / "broken_mod.py").write_text("raise RuntimeError('boom at import')\n")
+    (plugin / "raising_mod.py").write_text(
+        "import doabench\n\n\nclass Mid(doabench.Tracker):\n    name = 'mid'\n\n"
+        "    def step(self, observation):\n        raise ZeroDivisionError('mid-episode')\n")
+    monkeypatch.syspath_prepend(str(plugin))
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    base = ["run", "--task", "sim-demo", "--episodes", "1", "--quiet"]
+    out = tmp_path / "out"
+    for tracker, where in (("srp-max:100000x100000", out), ("broken_mod:X", out), ("raising_mod:Mid", out),
+                           ("srp-max:4x8", afile), ("srp-max:4x8", afile / "sub")):
+        assert main(base + ["--tracker", tracker, "--out", str(where)]) == 2, tracker
+        err = _one_line_error(capsys)
+        if "mod" in tracker:
+            assert tracker.split(":")[1].lower() in err.lower() or "broken_mod" in err
+    assert afile.read_text() == "x"
+    assert not out.exists() or not list(out.glob("*.json"))
+
+
+def test_a_grid_too_fine_is_refused_before_allocating():
+    from doabench.errors import ConfigError
+    from doabench.geometry import parse_resolution
+
+    with pytest.raises(ConfigError):
+        parse_resolution("100000x100000")
+    assert parse_resolution("64x128") == (64, 128)

@@ -1,4 +1,6 @@
 """`doabench track` on a user's recording: output format, truth agreement and input errors."""
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -19,7 +21,8 @@ def test_track_writes_csv_close_to_truth_and_a_plot(scene_dir, tmp_path):
     assert main(["track", str(scene_dir / "audio.wav"), "--tracker", "srp-max:32x64", "--out", str(csv),
                  "--plot", str(png)]) == 0
     est = pd.read_csv(csv)
-    assert list(est.columns) == ["time_s", "elevation_deg", "azimuth_deg", "x", "y", "z"]
+    assert list(est.columns) == ["time_s", "elevation_deg", "azimuth_deg", "x", "y", "z", "vad"]
+    assert set(est.vad) <= {0, 1} and est.vad.sum() > 0
     truth = pd.read_csv(scene_dir / "truth.csv")
     assert np.allclose(est.time_s, truth.time_s)
     active = truth.vad.to_numpy(bool)
@@ -62,3 +65,60 @@ def test_pyroomacoustics_trackers_follow_the_truth(scene_dir, tmp_path, tracker)
     cos = np.sum(est[["x", "y", "z"]].to_numpy() * truth[["x", "y", "z"]].to_numpy(), 1)
     errors = np.degrees(np.arccos(np.clip(cos, -1, 1)))[truth.vad.to_numpy(bool)]
     assert np.median(errors) < 15, (tracker, np.median(errors))
+
+
+def test_track_refuses_an_output_that_is_an_input(scene_dir, tmp_path, capsys):
+    import shutil
+
+    rec = tmp_path / "in.wav"
+    shutil.copy(scene_dir / "audio.wav", rec)
+    before = rec.read_bytes()
+    assert main(["track", str(rec), "--out", str(rec)]) == 2
+    assert main(["track", str(rec), "--out", str(tmp_path / "x.csv"), "--plot", str(rec)]) == 2
+    assert rec.read_bytes() == before and not (tmp_path / "x.csv").exists()
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 2
+
+
+def test_track_bad_outputs_are_refused_before_the_work(scene_dir, tmp_path, capsys, monkeypatch):
+    import os
+
+    rec = str(scene_dir / "audio.wav")
+    folder = tmp_path / "adir"
+    folder.mkdir()
+    (tmp_path / "afile").write_text("x")
+    calls = []
+    import doabench.cli.track as track_cli
+
+    monkeypatch.setattr(track_cli, "track_recording", lambda *a, **k: calls.append(1))
+    cases = [["--out", str(folder)], ["--out", str(tmp_path / "afile" / "x.csv")],
+             ["--out", str(tmp_path / "o.csv"), "--plot", str(tmp_path / "x.xyz")]]
+    for extra in cases:
+        assert main(["track", rec, *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    real_access = os.access
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    monkeypatch.setattr(os, "access", lambda p, mode, **k: False if Path(p) == locked else real_access(p, mode, **k))
+    assert main(["track", rec, "--out", str(locked / "o.csv")]) == 2
+    assert calls == [] and not (tmp_path / "o.csv").exists() and not list(locked.iterdir())
+
+
+def test_digital_silence_warns_and_the_csv_has_a_vad_column(tmp_path, capsys):
+    rec = tmp_path / "silence.wav"
+    sf.write(rec, np.zeros((16000 * 2, 12), np.float32), 16000, subtype="FLOAT")
+    out = tmp_path / "s.csv"
+    for vad in ("webrtc", "none"):
+        assert main(["track", str(rec), "--vad", vad, "--out", str(out)]) == 0
+        assert "warning" in capsys.readouterr().err
+        est = pd.read_csv(out)
+        assert "vad" in est.columns and len(est) > 0 and (est.vad == 0).all()
+
+
+def test_features_zero_sample_rate_is_refused(scene_dir, tmp_path, capsys):
+    out = tmp_path / "f.npy"
+    assert main(["features", str(scene_dir / "audio.wav"), "--fs", "0", "--resample", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()

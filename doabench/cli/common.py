@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
+from typing import Iterable
 
 
 def add_tracker_options(p: argparse.ArgumentParser, required: bool = True, default: str | None = None) -> None:
@@ -27,4 +30,52 @@ def corpus_kwargs(args: argparse.Namespace) -> dict:
         out["locata_root"] = args.locata_root
     if args.split:
         out["split"] = args.split
+    return out
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return a.expanduser().resolve() == b.expanduser().resolve()
+
+
+def _check_writable_folder(folder: Path, option: str, target: Path) -> None:
+    """The nearest existing ancestor of ``folder`` must be a writable folder (it is created below it)."""
+    from doabench.errors import InputError
+
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise InputError(f"{option} {target}: {probe} is not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {target}: folder {probe} is not writable")
+
+
+def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), option: str = "--out") -> Path:
+    """Refuse, before any computation, an output file that is a folder, lies in an unwritable
+    folder, or is one of the inputs (writing it would destroy the input)."""
+    from doabench.errors import InputError
+
+    out = Path(path)
+    if out.is_dir():
+        raise InputError(f"{option} {out} is a folder; give a file name")
+    for source in inputs:
+        if source is not None and _same_file(out, Path(source)):
+            raise InputError(f"{option} {out} is also an input ({source}); writing it would destroy that input")
+    _check_writable_folder(out.parent if str(out.parent) else Path("."), option, out)
+    return out
+
+
+def check_output_folder(path: str | Path, option: str = "--out") -> Path:
+    """Refuse, before any computation, an output folder that is a file or cannot be written."""
+    from doabench.errors import InputError
+
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{option} {out} is a file, not a folder")
+    _check_writable_folder(out, option, out)
     return out

@@ -100,6 +100,10 @@ def run(args) -> int:
     if not out.parent.is_dir():
         raise NotFoundError(f"output directory {out.parent} does not exist")
     sidecar = out.with_suffix(".json")
+    from doabench.cli.common import check_output_file
+
+    check_output_file(out, [args.recording, args.array], "--out")
+    check_output_file(sidecar, [args.recording, args.array], "--out (its .json sidecar)")
     array = get_array(args.array)
     spec = FrameSpec(args.window, args.hop, args.fs)
     resolution = parse_resolution(args.resolution)

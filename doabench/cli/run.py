@@ -28,6 +28,9 @@ def main(args: argparse.Namespace) -> int:
     from doabench.trackers.registry import make_tracker, parse_options
     from doabench.envs.registry import get_task_spec
 
+    from doabench.cli.common import check_output_folder
+
+    check_output_folder(args.out)  # before the work, not after it
     options = parse_options(args.tracker_opt)
     tracker = make_tracker(args.tracker, **options)
     spec = get_task_spec(args.task)

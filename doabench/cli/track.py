@@ -2,17 +2,19 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from doabench.cli.common import add_tracker_options
+from doabench.cli.common import add_tracker_options, check_output_file
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("track", help="track the source in your own multichannel recording",
                        description="Run a tracker on a WAV/FLAC recording (one channel per microphone) and "
-                                   "write one direction per frame as CSV: time_s, elevation_deg, azimuth_deg, x, y, z.")
+                                   "write one direction per frame as CSV: time_s, elevation_deg, azimuth_deg, x, y, z, vad "
+                                   "(1 when the frame is voice-active).")
     p.add_argument("recording", metavar="REC.wav")
     p.add_argument("--array", default="nao", help="built-in array name or JSON/YAML array file (default: nao)")
     add_tracker_options(p, required=False, default="srp-max")
@@ -40,21 +42,35 @@ def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | 
     """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording."""
     from doabench.features import FeatureExtractor
     from doabench.features.observations import extractor_kinds, recording_features
-    from doabench.runner import check_direction, check_directions
+    from doabench.runner import _guarded, check_direction, check_directions
 
     spec = tracker.frame_spec
     extractor = FeatureExtractor(array, kinds=extractor_kinds(tracker.features), resolution=tracker.resolution or (16, 32),
                                  mode=delays, frame_spec=spec, spectrogram_frame_spec=spec)
     feats = recording_features(extractor, audio, sample_vad, tracker.features, spec, device)
     n = len(feats["vad"])
-    tracker.reset(array, frame_spec=spec)
+    _guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
     if tracker.causal:
-        directions = np.stack([check_direction(tracker, tracker.step({**{k: v[t] for k, v in feats.items()},
-                                                                      "vad": int(feats["vad"][t])}), t)
-                               for t in range(n)]) if n else np.zeros((0, 3))
+        directions = np.stack([check_direction(tracker, _guarded(
+            tracker, f"step() at frame {t}", tracker.step,
+            {**{k: v[t] for k, v in feats.items()}, "vad": int(feats["vad"][t])}), t)
+            for t in range(n)]) if n else np.zeros((0, 3))
     else:
-        directions = check_directions(tracker, tracker.track(feats), n)
+        directions = check_directions(tracker, _guarded(tracker, "track()", tracker.track, feats), n)
     return {"times": spec.times(n), "directions": directions, "vad": feats["vad"].astype(bool)}
+
+
+def check_plot_path(path: str | Path) -> None:
+    """Refuse a ``--plot`` file whose format matplotlib cannot write (checked before any work)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from doabench.errors import InputError
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in formats:
+        raise InputError(f"--plot {path}: unknown image format {suffix or '(no suffix)'!r}; use one of "
+                         f"{', '.join(sorted(formats))}")
 
 
 def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad: np.ndarray, title: str) -> None:
@@ -95,15 +111,29 @@ def main(args: argparse.Namespace) -> int:
     from doabench.results.files import atomic_path
     from doabench.trackers.registry import make_tracker, parse_options
 
+    # Every output is checked before the work: none may be an input, a folder or unwritable.
+    check_output_file(args.out, [args.recording, args.array], "--out")
+    if args.plot:
+        check_output_file(args.plot, [args.recording, args.array, args.out], "--plot")
+        check_plot_path(args.plot)
     tracker = make_tracker(args.tracker, **parse_options(args.tracker_opt))
     array = get_array(args.array)
     spec = tracker.frame_spec
     audio, _ = load_recording(args.recording, array, spec.fs, args.resample, min_samples=spec.window)
-    sample_vad = recording_vad(audio, spec.fs) if args.vad == "webrtc" else None
+    silent = not np.any(audio)
+    if silent:  # no frame of digital silence is voice-active, whatever --vad says
+        sample_vad = np.zeros(audio.shape[-1], bool)
+    else:
+        sample_vad = recording_vad(audio, spec.fs) if args.vad == "webrtc" else None
     out = track_recording(tracker, array, audio, sample_vad, args.delays, args.device)
+    if silent or not out["vad"].any():
+        why = "the recording is digital silence (all samples zero)" if silent else "the VAD found no speech"
+        print(f"doabench track: warning: no frame was voice-active ({why}); the directions of silent frames "
+              "carry no information (see the vad column)", file=sys.stderr)
     el, az = unit_to_angles(out["directions"])
     table = pd.DataFrame({"time_s": out["times"], "elevation_deg": np.degrees(el), "azimuth_deg": np.degrees(az),
-                          "x": out["directions"][:, 0], "y": out["directions"][:, 1], "z": out["directions"][:, 2]})
+                          "x": out["directions"][:, 0], "y": out["directions"][:, 1], "z": out["directions"][:, 2],
+                          "vad": np.asarray(out["vad"], np.int8)})
     with atomic_path(args.out) as tmp:
         table.to_csv(tmp, index=False, float_format="%.4f")
     print(f"wrote {args.out}: {len(table)} frames from {args.recording} with {args.tracker}")

@@ -17,7 +17,7 @@ import importlib.util
 from importlib import metadata
 from typing import Any, Callable, TypeVar
 
-from doabench.errors import ConfigError, NotFoundError
+from doabench.errors import ConfigError, DoabenchError, NotFoundError, TrackerError
 from doabench.trackers.base import Tracker
 
 T = TypeVar("T", bound=type)
@@ -82,18 +82,33 @@ def _import_class(path: str) -> type[Tracker]:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise NotFoundError(f"tracker module {module_name!r} cannot be imported: {exc}") from None
+        raise NotFoundError(f"tracker module {module_name!r} cannot be imported: {one_line(exc)}") from None
+    except Exception as exc:  # the user's module failed while importing: name it, no traceback
+        raise TrackerError(f"tracker module {module_name!r} failed to import: {one_line(exc)}") from None
     cls = getattr(module, attr, None)
     if not (isinstance(cls, type) and issubclass(cls, Tracker)):
         raise NotFoundError(f"{path!r} is not a doabench.Tracker subclass")
     return cls
 
 
+def one_line(exc: BaseException) -> str:
+    """``Type: first line of the message`` of an exception, for one-line errors."""
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+
+
+def _module_exists(name: str) -> bool:
+    try:
+        return importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):
+        return False
+
+
 def resolve_tracker(text: str) -> tuple[type[Tracker], str | None, str]:
     """Parse a ``--tracker`` value into (class, spec, id)."""
     head, sep, rest = text.partition(":")
     trackers = available_trackers()
-    if sep and head not in trackers and ("." in head or importlib.util.find_spec(head) is not None):
+    if sep and head not in trackers and ("." in head or _module_exists(head)):
         attr, _, spec = rest.partition(":")
         cls = _import_class(f"{head}:{attr}")
         return cls, spec or None, cls.name or f"{head}:{attr}"
@@ -134,6 +149,10 @@ def make_tracker(text: str, **options: Any) -> Tracker:
         tracker = cls(spec=spec, **options)
     except TypeError as exc:
         raise ConfigError(f"tracker {name!r}: bad options {sorted(options)}: {exc}") from None
+    except DoabenchError:
+        raise
+    except Exception as exc:  # a plugin's constructor failed: name it, no traceback
+        raise TrackerError(f"tracker {name!r} failed to start: {one_line(exc)}") from None
     if not tracker.name:
         tracker.name = name
     return tracker
