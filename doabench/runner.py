@@ -8,17 +8,19 @@ an interrupted run continues where it stopped when run again with the same setti
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import os
 import time
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
-from doabench.errors import ConfigError, DoabenchError, TrackerError
+from doabench.errors import ConfigError, DoabenchError, InputError, TrackerError
 from doabench.geometry import normalize
 from doabench.metrics import aggregate, pooled_from_rows, azimuth_errors_deg, bootstrap_ci, episode_metrics, frame_errors_deg
 from doabench.results.files import to_json
@@ -105,6 +107,36 @@ def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
             "tracker_s": tracker_s, "audio_s": episode.n_samples / episode.fs, "metadata": episode.metadata}
 
 
+def lock_path(partial_path: str | Path) -> Path:
+    """The lock file of a run's resume journal."""
+    p = Path(partial_path)
+    return p.with_name(p.name.removesuffix(".partial.jsonl") + ".lock")
+
+
+@contextlib.contextmanager
+def run_lock(partial_path: str | Path) -> Iterator[None]:
+    """Exclusive ``flock`` of the run writing ``partial_path`` (two runs with the same ``--out``,
+    task and tracker would otherwise overwrite each other's journal and results). The kernel
+    releases it if the process dies; the lock file is removed when the run ends."""
+    import fcntl
+
+    path = lock_path(partial_path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(f"another doabench run is writing {Path(partial_path).parent} for this task and "
+                             f"tracker (its lock {path.name} is held); wait for it or stop it") from None
+        try:
+            yield
+        finally:
+            path.unlink(missing_ok=True)
+    finally:
+        os.close(fd)
+
+
 def _config_hash(config: dict) -> str:
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -123,13 +155,18 @@ def _episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
 def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,
              device: str | None = None, delays: str = "nearest", tracker_options: dict | None = None,
              partial_path: str | Path | None = None, progress: bool | Callable = True,
-             keep_frames: bool = True, **env_options: Any) -> dict[str, Any]:
+             keep_frames: bool = True, lock: bool = True, **env_options: Any) -> dict[str, Any]:
     """Run ``tracker`` on ``task`` and return the results dictionary (see docs/results-format).
 
     ``episodes``: a count (the first N) or explicit indices; default all of the task's episodes.
     ``partial_path``: a JSON-lines file of finished episodes for resuming; removed by the caller
-    once the final results are written.
+    once the final results are written. It is locked for the run (``lock=False``: the caller holds
+    :func:`run_lock` already). ``wall_time_s`` adds up every invocation that contributed episodes.
     """
+    if partial_path and lock:
+        with run_lock(partial_path):
+            return run_task(tracker, task, episodes, device, delays, tracker_options, partial_path, progress,
+                            keep_frames, lock=False, **env_options)
     if isinstance(tracker, str):
         tracker_text = tracker
         tracker = make_tracker(tracker, **(tracker_options or {}))
@@ -152,6 +189,21 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
               "options": tracker_options or {}, "delays": delays, "indices": indices,
               "weights": tracker.weights_hash(), "env": {k: str(v) for k, v in env_options.items()}}
     done = _load_partial(partial_path, _config_hash(config))
+    try:
+        records = _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep_frames, wall_start)
+    except BaseException:
+        if partial_path and not done:  # nothing finished: leave no journal behind
+            Path(partial_path).unlink(missing_ok=True)
+        raise
+    # This invocation's wall time plus that of the episodes earlier invocations journalled.
+    earlier = sum(float(r.get("wall_s", 0.0)) for r in records if not r.pop("_new", False))
+    wall_s = earlier + (time.perf_counter() - wall_start)
+    return _results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays)
+
+
+def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep_frames, wall_start) -> list[dict]:
+    """Run the episodes not yet in ``done``, journalling each; returns the records in index order."""
+    last = wall_start
     bar = None
     if progress is True:
         from tqdm.auto import tqdm
@@ -166,11 +218,15 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
         if keep_frames:
             record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"],
                                 "vad": ep["vad"]}
+        now = time.perf_counter()
+        record["wall_s"] = now - last  # this episode's share of the wall time, summed over resumes
+        last = now
         record = json.loads(to_json(record, indent=None))
-        done[index] = record
         if partial_path:
             with open(partial_path, "a") as f:
                 f.write(to_json(record, indent=None) + "\n")
+        record["_new"] = True
+        done[index] = record
         if bar is not None:
             bar.update(1)
             bar.set_postfix(rmsae=f"{record['row']['rmsae_all']:.1f}")
@@ -178,9 +234,7 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
             progress(index, record)
     if bar is not None:
         bar.close()
-    wall_s = time.perf_counter() - wall_start
-    records = [done[i] for i in indices]
-    return _results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays)
+    return [done[i] for i in indices]
 
 
 def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
@@ -195,23 +249,40 @@ def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
 
 
 def _load_partial(path: str | Path | None, config_hash: str) -> dict[int, dict]:
-    """Finished episodes of an interrupted run with the same configuration."""
+    """Finished episodes of an interrupted run with the same configuration.
+
+    The journal is rewritten with its valid lines only, so a line cut by a crash is dropped (that
+    episode is redone) instead of having the next episode's line appended to the fragment. A
+    header that is not doabench's is a one-line error: the file is left for the user to look at.
+    """
     if not path:
         return {}
     path = Path(path)
     done: dict[int, dict] = {}
+    keep: list[str] = []
     if path.exists():
-        lines = path.read_text().splitlines()
-        if lines and json.loads(lines[0]).get("config") == config_hash:
+        try:
+            lines = path.read_text().splitlines()
+            header = json.loads(lines[0]) if lines else {}
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            header = None
+        if not isinstance(header, dict) or (lines and not isinstance(header.get("config"), str)):
+            raise InputError(f"resume journal {path} is not a doabench run journal (bad first line); delete it "
+                             "to start the run afresh")
+        if header.get("config") == config_hash:
             for line in lines[1:]:
                 try:
                     rec = json.loads(line)
-                except json.JSONDecodeError:  # a line cut by a crash: that episode is redone
-                    continue
-                done[rec["row"]["episode"]] = rec
-    if not done:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps({"config": config_hash}) + "\n")
+                    index = int(rec["row"]["episode"])
+                    if not isinstance(rec.get("errors"), list):
+                        raise TypeError
+                except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+                    continue  # a line cut by a crash: that episode is redone
+                done[index] = rec
+                keep.append(line)
+    from doabench.results.files import write_text
+
+    write_text(path, "".join(line + "\n" for line in [json.dumps({"config": config_hash})] + keep))
     return done
 
 

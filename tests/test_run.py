@@ -186,7 +186,7 @@ def test_bad_run_inputs_are_one_line_errors_checked_first(tmp_path, monkeypatch,
         if "mod" in tracker:
             assert tracker.split(":")[1].lower() in err.lower() or "broken_mod" in err
     assert afile.read_text() == "x"
-    assert not out.exists() or not list(out.glob("*.json"))
+    assert not out.exists()  # no results, journal or folder left behind
 
 
 def test_a_grid_too_fine_is_refused_before_allocating():
@@ -196,3 +196,61 @@ def test_a_grid_too_fine_is_refused_before_allocating():
     with pytest.raises(ConfigError):
         parse_resolution("100000x100000")
     assert parse_resolution("64x128") == (64, 128)
+
+
+def _stop_after_first(i, record):
+    raise KeyboardInterrupt
+
+
+def test_resume_repairs_a_cut_line_and_adds_up_wall_time(tmp_path):
+    import time
+
+    partial = tmp_path / ".p.partial.jsonl"
+    with pytest.raises(KeyboardInterrupt):
+        run_task("srp-max:4x8", "sim-demo", episodes=2, progress=_stop_after_first, partial_path=partial,
+                 scene_overrides=QUICK_SCENE)
+    lines = partial.read_text().splitlines()
+    assert len(lines) == 2
+    first_wall = json.loads(lines[1])["wall_s"]
+    assert first_wall > 0
+    partial.write_text(lines[0] + "\n" + lines[1] + "\n" + lines[1][: len(lines[1]) // 2])  # a crash cut a line
+    seen = []
+    start = time.perf_counter()
+    res = run_task("srp-max:4x8", "sim-demo", episodes=2, progress=lambda i, r: seen.append(i), partial_path=partial,
+                   scene_overrides=QUICK_SCENE)
+    second = time.perf_counter() - start
+    assert seen == [1]
+    for line in partial.read_text().splitlines():
+        json.loads(line)  # the fragment is gone; the new episode's line stands on its own
+    assert len(partial.read_text().splitlines()) == 3
+    assert first_wall < res["wall_time_s"] <= first_wall + second
+    assert not (tmp_path / ".p.lock").exists()
+
+
+def test_garbage_journal_header_is_a_one_line_error(tmp_path, capsys):
+    from doabench.results.writer import results_stem
+
+    partial = tmp_path / f".{results_stem('sim-demo', 'srp-max:4x8')}.partial.jsonl"
+    partial.write_text("\x00garbage{\n")
+    args = ["run", "--tracker", "srp-max:4x8", "--task", "sim-demo", "--episodes", "1", "--out", str(tmp_path),
+            "--quiet"]
+    assert main(args) == 2
+    _one_line_error(capsys)
+    assert partial.read_text() == "\x00garbage{\n" and not list(tmp_path.glob("*.json"))
+
+
+def test_two_runs_with_the_same_out_are_refused(tmp_path, capsys):
+    from doabench.results.writer import results_stem
+    from doabench.runner import run_lock
+
+    partial = tmp_path / f".{results_stem('sim-demo', 'srp-max:4x8')}.partial.jsonl"
+    args = ["run", "--tracker", "srp-max:4x8", "--task", "sim-demo", "--episodes", "1", "--out", str(tmp_path),
+            "--quiet"]
+    with run_lock(partial):  # as if another `doabench run` were running
+        assert main(args) == 2
+        _one_line_error(capsys)
+        assert not list(tmp_path.glob("*.json")) and not partial.exists()
+    with pytest.raises(doabench.DoabenchError):
+        with run_lock(partial):
+            run_task("srp-max:4x8", "sim-demo", episodes=1, progress=False, partial_path=partial,
+                     scene_overrides=QUICK_SCENE)

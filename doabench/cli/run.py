@@ -29,19 +29,30 @@ def main(args: argparse.Namespace) -> int:
     from doabench.envs.registry import get_task_spec
 
     from doabench.cli.common import check_output_folder
+    from doabench.runner import run_lock
 
     check_output_folder(args.out)  # before the work, not after it
     options = parse_options(args.tracker_opt)
     tracker = make_tracker(args.tracker, **options)
     spec = get_task_spec(args.task)
     out = Path(args.out)
+    created = [p for p in [out, *out.parents] if not p.exists()]
     partial = out / f".{results_stem(spec.id, args.tracker)}.partial.jsonl"
-    results = run_task(tracker, spec.id, episodes=args.episodes, device=args.device, delays=args.delays,
-                       tracker_options=options, partial_path=partial, progress=not args.quiet,
-                       keep_frames=not args.no_frames, **corpus_kwargs(args))
-    results["tracker"]["id"] = args.tracker
-    json_path, csv_path = write_results(results, out)
-    partial.unlink(missing_ok=True)
+    try:
+        with run_lock(partial):  # a second run with the same --out, task and tracker is refused
+            results = run_task(tracker, spec.id, episodes=args.episodes, device=args.device, delays=args.delays,
+                               tracker_options=options, partial_path=partial, progress=not args.quiet,
+                               keep_frames=not args.no_frames, lock=False, **corpus_kwargs(args))
+            results["tracker"]["id"] = args.tracker
+            json_path, csv_path = write_results(results, out)
+            partial.unlink(missing_ok=True)
+    except BaseException:
+        for folder in created:  # folders this run made and left empty go again
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise
     print(format_summary(results))
     print(f"wrote {json_path} and {csv_path}")
     return 0
