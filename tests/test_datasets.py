@@ -330,3 +330,23 @@ def test_replay_of_nan_truth_is_refused_without_results(reference, tmp_path, cap
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not list(out.glob("*.json")) and not list(out.glob("*.csv"))  # no results (the journal of episode 0 stays)
+
+
+def test_merge_refuses_a_corrupt_chunk_even_with_one_input(reference, tmp_path, capsys):
+    bad = tmp_path / "bad.h5"
+    shutil.copy(reference, bad)
+    with h5py.File(bad, "r") as f:
+        d = f["episodes/000002/features/gcc"]
+        assert d.compression == "gzip"
+        info = d.id.get_chunk_info(0)
+    data = bytearray(bad.read_bytes())
+    start = info.byte_offset + info.size // 3
+    data[start:start + 64] = bytes(64)[:32] + b"\xff" * 32
+    bad.write_bytes(bytes(data))
+    out = tmp_path / "merged.h5"
+    with pytest.raises(InputError, match="episode 2"):
+        merge_datasets([bad], out)
+    assert main(["dataset", "merge", str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists() and not list(tmp_path.glob("merged*"))

@@ -36,6 +36,20 @@ def records_equal(a, b) -> bool:
     return True
 
 
+def verify_group(f: DatasetFile, index: int) -> None:
+    """Read (and so decompress and checksum) every dataset of episode ``index``: merge copies raw
+    chunks, so a corrupt chunk would otherwise be copied into the output unnoticed."""
+    group = f.group(index)
+    names: list[str] = []
+    group.visititems(lambda path, obj: names.append(path) if hasattr(obj, "dtype") else None)
+    for name in names:
+        try:
+            group[name][()]
+        except (OSError, ValueError, KeyError) as exc:
+            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise InputError(f"{f.path}: episode {index}: {name} is corrupt ({msg}); it cannot be merged") from None
+
+
 def merge_datasets(inputs: Sequence[str | Path], out: str | Path) -> dict[str, Any]:
     """Merge dataset files into ``out``; returns a summary (episodes, duplicates, requested)."""
     import h5py
@@ -59,7 +73,7 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path) -> dict[str, A
         for f in files:
             for i in f.indices:
                 if i in owner:
-                    if not records_equal(read_episode(owner[i].group(i)), read_episode(f.group(i))):
+                    if not records_equal(_read(owner[i], i), _read(f, i)):
                         raise InputError(f"episode {i} differs between {owner[i].path} and {f.path}; "
                                          "they cannot be merged")
                     duplicates += 1
@@ -86,6 +100,7 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path) -> dict[str, A
                 dst.create_dataset("requested", data=np.asarray(requested, np.int64))
                 eps = dst.create_group(EPISODES)
                 for i in sorted(owner):
+                    verify_group(owner[i], i)
                     src = owner[i].file[EPISODES]
                     src.copy(src[episode_name(i)], eps, name=episode_name(i))
             with open(tmp, "rb") as fh:
@@ -98,6 +113,14 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path) -> dict[str, A
     finally:
         for f in files:
             f.close()
+
+
+def _read(f: DatasetFile, index: int):
+    try:
+        return read_episode(f.group(index))
+    except (OSError, ValueError) as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{f.path}: episode {index} is corrupt ({msg}); it cannot be merged") from None
 
 
 def _requested(f: DatasetFile) -> list[int]:
