@@ -350,3 +350,27 @@ def test_merge_refuses_a_corrupt_chunk_even_with_one_input(reference, tmp_path, 
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not out.exists() and not list(tmp_path.glob("merged*"))
+
+
+@pytest.mark.parametrize("damage", ["corrupt", "missing"])
+def test_journal_parts_of_another_config_are_not_reused(task_dir, tmp_path, damage):
+    out = tmp_path / "d.h5"
+
+    def stop(index):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        make_dataset(TASK, out, episodes=2, features="srp:4x8", progress=stop)
+    folder = parts_dir(out)
+    assert (folder / "000000.h5").exists()
+    if damage == "corrupt":
+        (folder / "config.json").write_text("{not json")
+    else:
+        (folder / "config.json").unlink()
+    make_dataset(TASK, out, episodes=2, features="gcc", progress=False)
+    with h5py.File(out, "r") as f:
+        for name in ("000000", "000001"):
+            stored = set(f[f"episodes/{name}/features"])
+            assert stored == {"gcc"}, (name, stored)
+    with DatasetFile(out) as f:
+        assert f.items == ["gcc"]

@@ -127,8 +127,18 @@ def _fsync_dir(folder: Path) -> None:
             os.close(fd)
 
 
-def write_part(folder: Path, record: EpisodeRecord, compression: str) -> Path:
-    """Write one episode into ``folder/NNNNNN.h5`` atomically (tmp file, fsync, rename)."""
+def part_tag(config: dict[str, Any]) -> str:
+    """The configuration a journal part was made with, as a hash: every key that changes an
+    episode's content (the shard and episode count do not)."""
+    import hashlib
+
+    content = {k: v for k, v in config.items() if k not in SHARD_KEYS}
+    return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def write_part(folder: Path, record: EpisodeRecord, compression: str, tag: str = "") -> Path:
+    """Write one episode into ``folder/NNNNNN.h5`` atomically (tmp file, fsync, rename); the part
+    carries ``tag`` (:func:`part_tag` of the run's config) so a resume can check it."""
     import h5py
 
     name = episode_name(record.index)
@@ -136,6 +146,7 @@ def write_part(folder: Path, record: EpisodeRecord, compression: str) -> Path:
     final = folder / f"{name}.h5"
     try:
         with h5py.File(tmp, "w") as f:
+            f.attrs["part_config"] = tag
             write_episode(f.create_group(EPISODES), record, compression)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
@@ -146,8 +157,10 @@ def write_part(folder: Path, record: EpisodeRecord, compression: str) -> Path:
     return final
 
 
-def scan_parts(folder: Path) -> set[int]:
-    """Indices of the finished parts; stray tmp files and unreadable parts are deleted."""
+def scan_parts(folder: Path, tag: str | None = None) -> set[int]:
+    """Indices of the finished parts; stray tmp files, unreadable parts and (with ``tag``) parts made
+    with another configuration than the run's (another task or features: config.json alone is not
+    trusted, it may be corrupt or missing) are deleted, so those episodes are made again."""
     import h5py
 
     done: set[int] = set()
@@ -159,7 +172,7 @@ def scan_parts(folder: Path) -> set[int]:
             continue
         try:
             with h5py.File(p, "r") as f:
-                ok = is_complete(f[EPISODES][p.stem])
+                ok = is_complete(f[EPISODES][p.stem]) and (tag is None or f.attrs.get("part_config") == tag)
         except (OSError, KeyError):
             ok = False
         if ok:
@@ -174,7 +187,7 @@ _WORKER: dict[str, Any] = {}
 
 
 def _init_worker(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], folder: str,
-                 compression: str) -> None:
+                 compression: str, tag: str = "") -> None:
     import torch
 
     from doabench.datasets.compute import EpisodeComputer
@@ -182,12 +195,12 @@ def _init_worker(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], fold
     # One thread per process: the processes are the parallelism, and threads would fight over cores.
     torch.set_num_threads(1)
     _WORKER.update(computer=EpisodeComputer(spec, requests, **computer_kwargs), folder=Path(folder),
-                   compression=compression)
+                   compression=compression, tag=tag)
 
 
 def _work(index: int) -> int:
     record = _WORKER["computer"].compute(index)
-    write_part(_WORKER["folder"], record, _WORKER["compression"])
+    write_part(_WORKER["folder"], record, _WORKER["compression"], _WORKER["tag"])
     return index
 
 
@@ -252,12 +265,13 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
     folder.mkdir(parents=True, exist_ok=True)
     with journal_lock(folder):
         _check_journal_config(folder, out, config)
-        done = scan_parts(folder) & set(indices)
+        tag = part_tag(config)
+        done = scan_parts(folder, tag) & set(indices)
         todo = [i for i in indices if i not in done]
         computer_kwargs = {"float16": float16, "delays": delays, "sample_vad": sample_vad, "device": device,
                            "backend": backend, **source_options}
         _run(spec, requests, computer_kwargs, todo, folder, compression, workers, progress, source,
-             total=len(indices), initial=len(done), desc=f"{spec.id} -> {out.name}")
+             total=len(indices), initial=len(done), desc=f"{spec.id} -> {out.name}", tag=tag)
         options = {k: str(v) for k, v in source_options.items()}
         info = {"generated_by": {"workers": int(workers), "source_options": options,
                                  "seconds": round(time.perf_counter() - start, 3)},
@@ -302,7 +316,8 @@ def _source_description(source) -> dict[str, Any]:
 
 
 def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[int], folder: Path,
-         compression: str, workers: int, progress, source, total: int, initial: int, desc: str) -> None:
+         compression: str, workers: int, progress, source, total: int, initial: int, desc: str,
+         tag: str = "") -> None:
     bar = None
     if progress is True:
         from tqdm.auto import tqdm
@@ -323,7 +338,7 @@ def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[i
 
             computer = EpisodeComputer(spec, requests, source=source, **computer_kwargs)
             for index in todo:
-                write_part(folder, computer.compute(index), compression)
+                write_part(folder, computer.compute(index), compression, tag)
                 done(index)
             return
         import multiprocessing
@@ -332,7 +347,7 @@ def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[i
         # 'spawn': a clean interpreter per worker (fork would copy torch's thread pools and locks).
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx, initializer=_init_worker,
-                                 initargs=(spec, requests, computer_kwargs, str(folder), compression)) as ex:
+                                 initargs=(spec, requests, computer_kwargs, str(folder), compression, tag)) as ex:
             pending = {ex.submit(_work, i) for i in todo}
             try:
                 while pending:
