@@ -27,7 +27,7 @@ import torch
 from torch import nn
 
 import doabench
-from doabench.errors import ConfigError
+from doabench.errors import ConfigError, TrackerError
 
 from .cnn1d import CausalCnn1d
 from .cnn2d import SpecCnn2d
@@ -263,10 +263,18 @@ class NeuralTracker(doabench.Tracker):
         return np.stack([self._direction(v) for v in y[0].to("cpu", torch.float64).numpy()])
 
     def _direction(self, y: np.ndarray) -> np.ndarray:
-        """Normalise the network output; keep the previous direction if it is (near) zero or NaN."""
-        norm = float(np.linalg.norm(y))
-        if np.isfinite(norm) and norm > 1e-6:
-            self._last = y / norm
+        """Normalise the network output; keep the previous direction if it is (near) zero. A NaN or
+        infinite output is an error (broken weights or inputs), never silently held."""
+        y = np.asarray(y, dtype=np.float64)
+        if not np.all(np.isfinite(y)):
+            raise TrackerError(
+                f"tracker {self.name!r}: the network output {y} is not finite (damaged weights or inputs?)")
+        scale = float(np.max(np.abs(y))) if y.size else 0.0
+        if scale > 0:
+            u = y / scale  # scaled first: the norm of huge outputs does not overflow
+            norm = float(np.linalg.norm(u)) * scale
+            if norm > 1e-6:
+                self._last = u / np.linalg.norm(u)
         return self._last.copy()
 
     def _tensor(self, a: np.ndarray) -> torch.Tensor:

@@ -12,7 +12,10 @@ the weights were trained for, and loading checks it against what the caller is a
      "doabench_version": "0.1.0", "date": "2026-01-01T00:00:00+00:00"}
 
 Shipped weights live in ``baselines/weights/<model>-<resolution>.safetensors`` (models without a
-map resolution: ``<model>.safetensors``).
+map resolution: ``<model>.safetensors``). ``baselines/weights/SHA256SUMS`` (``sha256sum`` format)
+lists the SHA-256 of every shipped file; a shipped file is loaded only when it matches, and
+:func:`save_weights` into that folder updates the list. Every loaded tensor must be finite and of
+a plausible magnitude (at most ``MAX_ABS_WEIGHT``).
 """
 from __future__ import annotations
 
@@ -27,13 +30,17 @@ from torch import nn
 
 import doabench
 from doabench import parse_resolution, sha256_file  # noqa: F401  (sha256_file is used by the trackers)
-from doabench.errors import ConfigError, InputError, NotFoundError
+from doabench.errors import ConfigError, DoabenchError, InputError, NotFoundError
 
 FORMAT = "doabench-weights/1"
 METADATA_KEY = "doabench"
 SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
 #: largest microphone displacement (m) between the weights' array and the one in use
 ARRAY_TOLERANCE_M = 0.005
+#: the SHA-256 list of the shipped weight files, in SHIPPED_DIR
+MANIFEST_NAME = "SHA256SUMS"
+#: no trained weight is anywhere near this (the shipped ones stay below 1); larger means a broken file
+MAX_ABS_WEIGHT = 1e6
 
 
 def resolution_text(resolution: tuple[int, int] | None) -> str | None:
@@ -80,7 +87,65 @@ def save_weights(path: str | Path, model: nn.Module, metadata: Mapping[str, Any]
                                            "model": str(metadata.get("model")),
                                            "resolution": str(metadata.get("resolution"))})
     tmp.replace(path)  # atomic: a crash never leaves a half-written weight file under the real name
+    if _is_shipped(path):
+        update_manifest(path)
     return path
+
+
+def _is_shipped(path: str | Path) -> bool:
+    return Path(path).resolve().parent == Path(SHIPPED_DIR).resolve()
+
+
+def read_manifest(folder: str | Path | None = None) -> dict[str, str]:
+    """``{file name: sha256}`` of the shipped weight files (empty when there is no manifest)."""
+    path = Path(folder or SHIPPED_DIR) / MANIFEST_NAME
+    if not path.is_file():
+        return {}
+    out = {}
+    for line in path.read_text().splitlines():
+        digest, sep, name = line.strip().partition("  ")
+        if sep and len(digest) == 64:
+            out[name.lstrip("*")] = digest.lower()
+    return out
+
+
+def update_manifest(path: str | Path) -> None:
+    """Record the SHA-256 of ``path`` (a shipped weight file) in its folder's manifest."""
+    path = Path(path)
+    entries = read_manifest(path.parent)
+    entries[path.name] = sha256_file(path)
+    text = "".join(f"{digest}  {name}\n" for name, digest in sorted(entries.items()))
+    tmp = path.parent / f".{MANIFEST_NAME}.tmp"
+    tmp.write_text(text)
+    tmp.replace(path.parent / MANIFEST_NAME)
+
+
+def verify_shipped(path: str | Path) -> None:
+    """A shipped weight file must match its SHA-256 in the manifest (flipped bytes, a truncated or
+    replaced file are refused)."""
+    path = Path(path)
+    want = read_manifest(path.parent).get(path.name)
+    if want is None:
+        raise InputError(f"weights file {path} is not listed in {path.parent / MANIFEST_NAME}; shipped weights "
+                         "are loaded only when their SHA-256 is recorded there")
+    have = sha256_file(path)
+    if have != want:
+        raise InputError(f"weights file {path} is damaged: its SHA-256 {have[:12]}... does not match "
+                         f"{want[:12]}... in {MANIFEST_NAME}; reinstall it")
+
+
+def check_tensors(state: Mapping[str, torch.Tensor], path: str | Path) -> None:
+    """Every floating-point tensor must be finite and at most MAX_ABS_WEIGHT in magnitude."""
+    for name, t in state.items():
+        if not t.is_floating_point() or t.numel() == 0:
+            continue
+        if not bool(torch.isfinite(t).all()):
+            raise InputError(f"weights file {Path(path).name}: tensor {name!r} holds NaN or infinite values; "
+                             "the file is damaged")
+        worst = float(t.abs().max())
+        if worst > MAX_ABS_WEIGHT:
+            raise InputError(f"weights file {Path(path).name}: tensor {name!r} holds a value of magnitude "
+                             f"{worst:.3g} (more than {MAX_ABS_WEIGHT:g}); the file is damaged")
 
 
 def _open(path: str | Path):
@@ -158,10 +223,18 @@ def load_weights(path: str | Path, **expect: Any) -> tuple[dict[str, torch.Tenso
 
     Returns ``(state_dict, metadata)``; tensors are on the CPU.
     """
+    if _is_shipped(path):
+        verify_shipped(path)
     meta = read_metadata(path)
     check_metadata(meta, path, **expect)
-    with _open(path) as f:
-        state = {k: f.get_tensor(k) for k in f.keys()}
+    try:
+        with _open(path) as f:
+            state = {k: f.get_tensor(k) for k in f.keys()}
+    except DoabenchError:
+        raise
+    except Exception as exc:  # a damaged tensor section
+        raise InputError(f"weights file {path}: unreadable tensors ({type(exc).__name__}: {exc})") from None
+    check_tensors(state, path)
     return state, meta
 
 

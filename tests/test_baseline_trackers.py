@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import doabench
-from doabench.errors import ConfigError
+from doabench.errors import ConfigError, TrackerError
 import doabench_baselines.trackers as T
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -115,7 +115,8 @@ def test_a_zero_network_output_keeps_the_previous_direction():
     first = tracker._direction(np.array([0.0, 2.0, 0.0]))
     assert np.allclose(first, [0, 1, 0])
     assert np.allclose(tracker._direction(np.zeros(3)), [0, 1, 0])
-    assert np.allclose(tracker._direction(np.array([np.nan, 0, 0])), [0, 1, 0])
+    with pytest.raises(TrackerError):  # a NaN output is never turned into a held estimate (issue 14)
+        tracker._direction(np.array([np.nan, 0, 0]))
 
 
 def test_user_mistakes_are_config_errors():

@@ -131,3 +131,63 @@ def test_shipped_weights_are_found_and_set_the_default_resolution(tmp_path, monk
     assert tracker.resolution == (4, 8) and tracker.trained
     assert W.shipped_resolutions("cross3d") == [(4, 8)]
     assert not _untrained(Cross3DTracker, "4x8", weights="random").trained  # weights=random overrides
+
+
+def _scaled_copy(tracker, path, tmp_path, factor):
+    state, meta = W.load_weights(path)
+    from safetensors.torch import save_file
+
+    bad = {k: (v * factor if v.is_floating_point() else v) for k, v in state.items()}
+    name = list(bad)[0]
+    if factor != factor:  # NaN: only one value
+        bad = dict(state)
+        t = bad[name].clone()
+        t.view(-1)[0] = float("nan")
+        bad[name] = t
+    out = tmp_path / f"bad-{factor}.safetensors"
+    save_file(bad, str(out), metadata={"doabench": json.dumps(meta)})
+    return out
+
+
+@pytest.mark.parametrize("factor", [float("nan"), 1e30])
+def test_weights_with_nan_or_huge_values_are_refused(cross3d_file, tmp_path, factor):
+    tracker, path = cross3d_file
+    bad = _scaled_copy(tracker, path, tmp_path, factor)
+    with pytest.raises(InputError):
+        W.load_weights(bad)
+    with pytest.raises(InputError):
+        Cross3DTracker("4x8", weights=str(bad))
+
+
+def test_shipped_weights_are_checked_against_the_manifest(tmp_path, monkeypatch):
+    monkeypatch.setattr(W, "SHIPPED_DIR", tmp_path)
+    path = _untrained(Cross3DTracker, "4x8", weights="random").save_weights(tmp_path / "cross3d-4x8.safetensors")
+    assert W.read_manifest(tmp_path)["cross3d-4x8.safetensors"] == W.sha256_file(path)
+    assert Cross3DTracker().trained  # listed and intact: loads
+    data = bytearray(path.read_bytes())
+    data[-100] ^= 0x01  # one flipped bit in the tensor data
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError):
+        Cross3DTracker()
+    (tmp_path / "SHA256SUMS").unlink()
+    with pytest.raises(InputError):
+        W.load_weights(path)
+
+
+def test_the_real_shipped_files_match_their_manifest():
+    manifest = W.read_manifest()
+    shipped = sorted(p.name for p in W.SHIPPED_DIR.glob("*.safetensors"))
+    assert shipped and sorted(manifest) == shipped
+    for name in shipped:
+        W.verify_shipped(W.SHIPPED_DIR / name)
+
+
+def test_a_nan_network_output_is_an_error_not_a_held_direction(cross3d_file):
+    from doabench.errors import TrackerError
+
+    tracker, _ = cross3d_file
+    tracker._last = np.array([0.0, 1.0, 0.0])
+    with pytest.raises(TrackerError):
+        tracker._direction(np.array([np.nan, 0.0, 0.0]))
+    np.testing.assert_allclose(tracker._direction(np.array([1e200, 0.0, 0.0])), [1, 0, 0])
+    np.testing.assert_allclose(tracker._direction(np.zeros(3)), [1, 0, 0])  # zero: the previous one is kept
