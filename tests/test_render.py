@@ -26,7 +26,7 @@ SMALL = SceneDistribution(room_min=(3.0, 3.0, 2.5), room_max=(5.0, 4.0, 3.0), t6
 @pytest.fixture(scope="module")
 def rendered():
     scene = sample_scene(SMALL, 11, SPEECH)
-    return scene, render_components(scene, SPEECH)
+    return scene, render_components(scene, SPEECH, keep_direct=True)
 
 
 def test_same_seed_same_backend_is_bitwise_identical(rendered):
@@ -52,9 +52,25 @@ def test_snr_is_measured_on_direct_path_over_non_silent_frames(rendered):
     assert np.allclose(r.episode.audio, (r.reverberant + r.noise).astype(np.float32), atol=1e-7)
 
 
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_analytic_direct_power_matches_the_convolved_direct_path(seed):
+    from doabench.acoustics.render import direct_path_power, reference_power
+    from doabench.acoustics.simulators import direct_path
+
+    dist = SMALL.replace(room_min=(3.0, 3.0, 2.5), room_max=(9.0, 8.0, 5.0), duration_s=6.0, n_points=48)
+    scene = sample_scene(dist, seed, SPEECH)
+    chunk = SPEECH.load(scene.speech)
+    sources, mics = np.array(scene.source_positions), np.array(scene.mic_room_positions)
+    direct = direct_path(scene.room, sources, mics, chunk.signal, scene.fs)
+    convolved, frames_a = reference_power(direct, chunk.vad)
+    analytic, frames_b = direct_path_power(sources, mics, chunk.signal, chunk.vad, scene.fs)
+    assert np.array_equal(frames_a, frames_b)
+    assert abs(10 * np.log10(analytic / convolved)) < 0.1
+
+
 def test_anechoic_scene_is_the_direct_path():
     scene = sample_scene(SMALL.replace(t60=(0.0, 0.0), snr=(30.0, 30.0), duration_s=1.5, n_points=12), 2, SPEECH)
-    r = render_components(scene, SPEECH)
+    r = render_components(scene, SPEECH, keep_direct=True)
     assert scene.room.t60 == 0.0 and np.all(np.isfinite(r.episode.audio))
     err = np.abs(r.reverberant - r.direct).max()
     assert err < 1e-5 * np.abs(r.direct).max()

@@ -122,7 +122,7 @@ def test_resume_continues_exactly(tmp_path, caches):
 def straight_history(run: Path) -> list[dict]:
     from doabench.training.checkpoint import load_checkpoint
 
-    return load_checkpoint(run / "checkpoint.pt")["history"]
+    return load_checkpoint(run / "checkpoint.safetensors")["history"]
 
 
 def test_existing_run_needs_resume(tmp_path, caches):

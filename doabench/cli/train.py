@@ -27,7 +27,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--switch-epoch", type=int,
                    help="epoch at which the curriculum's second phase starts (paper: 20; cpu: half the epochs)")
     p.add_argument("--seed", type=int, default=0, help="run seed (network init and item seeds)")
-    p.add_argument("--workers", type=int, help="DataLoader worker processes (default: the preset's)")
+    p.add_argument("--workers", type=int,
+                   help="DataLoader worker processes that simulate and extract features (default: the preset's, "
+                        "at most the cores but one)")
+    p.add_argument("--precision", choices=["auto", "bf16", "fp32"], default="auto",
+                   help="auto (default): bf16 autocast with float32 master weights where the CPU has native bf16 "
+                        "(AVX-512 BF16/AMX) or on CUDA, else float32")
+    p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=None,
+                   help="torch.compile the network (default: on for --preset paper; about 1-2 minutes of "
+                        "compilation per batch shape, then a faster step)")
+    p.add_argument("--device", default="cpu", help="device the network trains on: cpu (default) or cuda")
     p.add_argument("--out", required=True, help="run folder: checkpoints, log.csv, loss.png")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--librispeech", help="LibriSpeech root holding train-clean-100 (default: $DOABENCH_LIBRISPEECH)")
@@ -56,7 +65,7 @@ def build_recipe(args: argparse.Namespace):
     recipe = get_recipe(args.preset)
     changes = {"seed": args.seed}
     for arg, key in (("epochs", "epochs"), ("epoch_size", "trajectories_per_epoch"), ("cache_size", "cache_size"),
-                     ("val_trajectories", "val_trajectories"), ("workers", "num_workers")):
+                     ("val_trajectories", "val_trajectories")):
         if getattr(args, arg) is not None:
             changes[key] = getattr(args, arg)
     if args.switch_epoch is not None:
@@ -95,7 +104,9 @@ def main(args: argparse.Namespace) -> int:
                         librispeech=args.librispeech, cache_root=Path(args.cache_root), simulator=args.backend,
                         resume=args.resume, threads=args.threads, progress=not args.quiet,
                         max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
-                        dataset=Path(args.dataset) if args.dataset else None, epochs=args.epochs)
+                        dataset=Path(args.dataset) if args.dataset else None, epochs=args.epochs,
+                        precision=args.precision, workers=args.workers, device=args.device,
+                        compile=args.preset == "paper" if args.compile is None else args.compile)
     if args.build_cache:
         from doabench.envs.registry import get_task_spec
         from doabench.training.pipeline import ensure_cache

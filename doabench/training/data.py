@@ -97,6 +97,25 @@ class SimulatedItems(Dataset):
                 "truth": torch.from_numpy(truth), "vad": torch.from_numpy(vad)}
 
 
+class NetworkInputs(Dataset):
+    """``items`` with each item's audio turned into the network input by ``to_input`` (features and
+    the tracker's ``network_input``), so DataLoader workers do the feature work next to the
+    simulation and only ``{"input", "truth", "vad"}`` crosses to the training process.
+
+    ``to_input(audio (M, L), sample_vad (L,)) -> input (C, T, ...)`` (no batch axis).
+    """
+
+    def __init__(self, items: Dataset, to_input) -> None:
+        self.items, self.to_input = items, to_input
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, k: int) -> dict[str, torch.Tensor]:
+        item = self.items[k]
+        return {"input": self.to_input(item["audio"], item["sample_vad"]), "truth": item["truth"], "vad": item["vad"]}
+
+
 class ValidationItems(Dataset):
     """Fixed validation items: cached held-out-speaker trajectories at their own scene SNR with
     noise seeded per item, identical in every epoch and every run."""

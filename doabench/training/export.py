@@ -19,7 +19,8 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
 
     spec = get_task_spec(state["task"])
     history = state["history"]
-    row = next((h for h in history if h["epoch"] == state["epoch"]), history[-1] if history else {})
+    epoch = int(state.get("best_epoch") or state["epoch"]) if which == "best" else int(state["epoch"])
+    row = next((h for h in history if h["epoch"] == epoch), history[-1] if history else {})
     return {
         "tracker": tracker_id or state["tracker"],
         "resolution": None if tracker.resolution is None else "%dx%d" % tuple(tracker.resolution),
@@ -32,9 +33,14 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
         "torch_version": torch.__version__,
         "training": {
             "task": spec.id, "task_version": spec.version, "recipe": state["recipe"],
-            "checkpoint": which, "epochs_completed": state["epoch"],
-            "trajectories_seen": state["trajectories_seen"], "compute_s": round(float(state["compute_s"]), 1),
-            "hardware": f"CPU ({platform.machine()}), {state.get('threads', '?')} torch threads",
+            "checkpoint": which, "epochs_completed": epoch,
+            "trajectories_seen": int(row.get("trajectories_seen") or state["trajectories_seen"]),
+            "distinct_trajectories": int(row.get("trajectories_seen") or state["trajectories_seen"])
+            if state["recipe"].get("data") == "simulate" else (row.get("n_cache") or None),
+            "compute_s": round(float(row.get("compute_s") or state["compute_s"]), 1),
+            "precision": state.get("precision", "float32"),
+            "hardware": f"{state.get('device', 'cpu')} ({platform.machine()}), "
+                        f"{state.get('threads', '?')} torch threads",
             "cached_trajectories": row.get("n_cache") or None,
             "loss": "MSE between the output and the true unit vector of every frame",
             "optimizer": "Adam",
@@ -46,7 +52,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
 
 def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best", tracker: Any = None,
                    tracker_id: str | None = None, dtype: str = "float32") -> Path:
-    """Load ``best.pt`` or ``checkpoint.pt`` of ``run_dir`` into the tracker and save its weights.
+    """Load the best or the latest weights of ``run_dir``'s checkpoint into the tracker and save them.
 
     ``tracker_id`` (default: the id the run was trained with) builds the tracker when ``tracker``
     is not given; its network must have the same parameter names and shapes. ``dtype="float16"``
@@ -58,7 +64,7 @@ def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best
 
     if which not in ("best", "latest"):
         raise ConfigError(f"export which must be best or latest, got {which!r}")
-    state = ckpt.load_checkpoint(Path(run_dir) / (ckpt.BEST if which == "best" else ckpt.LATEST))
+    state = ckpt.load_checkpoint(Path(run_dir) / ckpt.LATEST)
     config = Path(run_dir) / "config.json"
     if "threads" not in state and config.exists():  # runs started before checkpoints recorded it
         import json
@@ -68,7 +74,7 @@ def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best
     tracker = tracker if tracker is not None else make_tracker(tracker_id, weights="random") if _takes_weights(
         tracker_id) else make_tracker(tracker_id)
     check_trainable(tracker, tracker_id)
-    tracker.network.load_state_dict(state["model"])
+    tracker.network.load_state_dict(ckpt.best_weights(state) if which == "best" else state["model"])
     tracker.network.eval()
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)

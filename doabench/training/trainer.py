@@ -8,9 +8,12 @@ checkpoint, ``log.csv`` and ``loss.png`` in the run folder are rewritten atomica
 """
 from __future__ import annotations
 
+import contextlib
+import copy
 import csv
 import io
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +27,8 @@ from doabench.errors import ConfigError, NotFoundError
 from doabench.results.files import atomic_path, write_json, write_text
 from doabench.training import checkpoint as ckpt
 from doabench.training.cache import TrajectoryCache
-from doabench.training.data import CachedItems, DatasetItems, SimulatedItems, ValidationItems, collate
+from doabench.training.data import (CachedItems, DatasetItems, NetworkInputs, SimulatedItems, ValidationItems,
+                                    collate)
 from doabench.training.pipeline import (DEFAULT_CACHE_ROOT, cache_folder, ensure_cache, scene_distribution,
                                         speech_for_split)
 from doabench.training.protocol import check_trainable, training_defaults
@@ -32,7 +36,9 @@ from doabench.training.recipes import Recipe
 
 FeatureFn = Callable[[torch.Tensor, torch.Tensor], Mapping[str, torch.Tensor]]
 CSV_COLUMNS = ("epoch", "phase_snr", "batch_size", "lr", "train_loss", "val_loss", "val_rmsae_all",
-               "val_rmsae_nonsilent", "n_cache", "trajectories_seen", "epoch_s", "compute_s")
+               "val_rmsae_nonsilent", "n_cache", "trajectories_seen", "epoch_s", "compute_s",
+               "trajectories_per_s")
+PRECISIONS = ("auto", "bf16", "fp32")
 
 
 @dataclass
@@ -54,7 +60,41 @@ class TrainOptions:
     dataset: Path | None = None    # train from a `doabench make-dataset` file instead
     epochs: int | None = None      # on --resume: a new epoch count (None keeps the run's)
     tracker_options: dict[str, Any] = field(default_factory=dict)
+    precision: str = "auto"        # auto: bf16 autocast where the CPU has native bf16 (or on CUDA), else fp32
+    compile: bool = False          # torch.compile the network's training forward (channels-last 3D maps)
+    workers: int | None = None     # DataLoader workers; None: the recipe's, capped at the free cores
+    device: str = "cpu"            # where the network trains (cuda: also simulation when workers == 0)
 
+
+def cpu_has_native_bf16() -> bool:
+    """True where oneDNN runs bf16 natively (AVX-512 BF16 or AMX): there autocast pays off."""
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):
+        return False
+
+
+def resolve_precision(precision: str, device: torch.device) -> str:
+    if precision not in PRECISIONS:
+        raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "auto":
+        return "bf16" if device.type == "cuda" or cpu_has_native_bf16() else "fp32"
+    return precision
+
+
+def default_workers(requested: int) -> int:
+    """Worker processes that do not oversubscribe the machine: at most ``cores - 1`` (the main
+    process trains on the remaining core), at least 1 when any are requested."""
+    if requested <= 0:
+        return 0
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(requested, cores - 1))
+
+
+def _one_thread_worker(_: int) -> None:
+    # Each worker simulates and extracts features on one core; two threads per process on a
+    # 2-core machine made every process wait for the others' spinning OpenMP threads.
+    torch.set_num_threads(1)
 
 def angular_errors_deg(estimates: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     """Great-circle angle in degrees between ``(..., 3)`` vectors (any length) and unit truth."""
@@ -87,6 +127,11 @@ class Trainer:
             recipe = Recipe.from_dict(self.saved["recipe"])
             if options.epochs is not None:
                 recipe = recipe.replace(epochs=options.epochs)
+        self.device = torch.device(options.device)
+        if self.device.type == "cuda" and not torch.cuda.is_available():
+            raise ConfigError("--device cuda requested but torch has no CUDA device here")
+        saved_precision = None if self.saved is None else self.saved.get("precision")
+        self.precision = saved_precision or resolve_precision(options.precision, self.device)
         torch.manual_seed(recipe.seed)  # network initialisation
         self.tracker = tracker if tracker is not None else make_tracker(options.tracker, **options.tracker_options)
         check_trainable(self.tracker, options.tracker)
@@ -97,11 +142,19 @@ class Trainer:
             recipe = recipe.replace(t60=tuple(defaults["t60"]))
         self.recipe = recipe
         self.network: torch.nn.Module = self.tracker.network
+        self.network.to(self.device)
+        self.channels_last = bool(options.compile) and any(isinstance(m, torch.nn.Conv3d)
+                                                           for m in self.network.modules())
+        if self.channels_last:  # oneDNN's fast (AMX) 3D convolutions want channels-last tensors
+            self.network.to(memory_format=torch.channels_last_3d)
+        self.train_forward = torch.compile(self.network) if options.compile else self.network
         self.frame_spec = self.tracker.frame_spec
         self.feature_fn = feature_fn or self._default_features()
         self.train_cache_dir = train_cache
         self.val_cache_dir = val_cache
         self.optimizer = torch.optim.Adam(self.network.parameters(), lr=recipe.phases[0].lr)
+        requested = recipe.num_workers if options.workers is None else options.workers
+        self.workers = default_workers(requested) if options.workers is None else max(0, int(options.workers))
         self.base_seed = int(self.spec.base_seed) + int(recipe.seed)
 
     # -- setup ------------------------------------------------------------------------------
@@ -167,19 +220,40 @@ class Trainer:
                                get_array(self.spec.array), get_simulator(self.options.simulator))
         speech, array, sim = self._sim_parts
         dist = scene_distribution(self.spec, r).replace(snr=tuple(snr))
-        return SimulatedItems(dist, speech, array, sim, self.base_seed, epoch, r.trajectories_per_epoch,
-                              self.frame_spec), 0
+        items = SimulatedItems(dist, speech, array, sim, self.base_seed, epoch, r.trajectories_per_epoch,
+                               self.frame_spec)
+        # Features (and the network input) are computed next to the simulation, in the workers.
+        return NetworkInputs(items, self.item_input), 0
 
     # -- one step, validation ------------------------------------------------------------------
     def network_input(self, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
         with torch.no_grad():
+            if "input" in batch:  # computed by the data workers
+                return batch["input"]
             if "features" in batch:  # stored features (dataset file)
                 return self.tracker.network_input(dict(batch["features"]))
             feats = dict(self.feature_fn(batch["audio"], batch["sample_vad"]))
             return self.tracker.network_input(feats)
 
-    def forward(self, x: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
-        y = self.network(x)
+    def item_input(self, audio: torch.Tensor, sample_vad: torch.Tensor) -> torch.Tensor:
+        """The network input of one item (``audio`` ``(M, L)``, ``sample_vad`` ``(L,)``), without its batch axis."""
+        with torch.no_grad():
+            return self.tracker.network_input(dict(self.feature_fn(audio[None], sample_vad[None])))[0]
+
+    def _autocast(self):
+        if self.precision != "bf16":
+            return contextlib.nullcontext()
+        return torch.autocast(self.device.type, dtype=torch.bfloat16)
+
+    def _to_device(self, x: torch.Tensor) -> torch.Tensor:
+        x = x.to(self.device, non_blocking=True)
+        if self.channels_last and x.dim() == 5:
+            x = x.contiguous(memory_format=torch.channels_last_3d)
+        return x
+
+    def forward(self, x: torch.Tensor, truth: torch.Tensor, network: Callable | None = None) -> torch.Tensor:
+        with self._autocast():  # bf16 activations, float32 master weights and loss
+            y = (self.network if network is None else network)(x).float()
         if y.shape != truth.shape:
             raise ConfigError(f"tracker {self.options.tracker!r}: network output {tuple(y.shape)} does not match "
                               f"the truth {tuple(truth.shape)} (B, T, 3)")
@@ -188,8 +262,9 @@ class Trainer:
     def train_step(self, batch: Mapping[str, torch.Tensor]) -> float:
         """One Adam step on ``batch``; returns the loss before the step."""
         self.network.train()
-        x = self.network_input(batch)
-        loss = torch.nn.functional.mse_loss(self.forward(x, batch["truth"]), batch["truth"])
+        x = self._to_device(self.network_input(batch))
+        truth = batch["truth"].to(self.device)
+        loss = torch.nn.functional.mse_loss(self.forward(x, truth, self.train_forward), truth)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -206,7 +281,9 @@ class Trainer:
         self.network.eval()
         losses, errors, active = [], [], []
         for x, truth, vad in val:
-            y = self.forward(x, truth)
+            x, truth = self._to_device(x), truth.to(self.device)
+            y = self.forward(x, truth).cpu()
+            truth = truth.cpu()
             losses.append(torch.nn.functional.mse_loss(y, truth, reduction="none").mean(-1).flatten())
             errors.append(angular_errors_deg(y, truth).flatten())
             active.append(vad.flatten())
@@ -219,9 +296,13 @@ class Trainer:
         self.out.mkdir(parents=True, exist_ok=True)
         history: list[dict[str, Any]] = []
         start, best, compute_s, seen = 0, math.inf, 0.0, 0
+        best_epoch, best_weights = 0, None
         if self.saved is not None:
             s = self.saved
             self.network.load_state_dict(s["model"])
+            best_epoch = int(s.get("best_epoch") or s["epoch"])
+            if s.get("best_model") is not None:
+                best_weights = s["best_model"]
             self.optimizer.load_state_dict(s["optimizer"])
             ckpt.set_rng_state(s["rng"])
             start, history, best = int(s["epoch"]), list(s["history"]), float(s["best"])
@@ -234,13 +315,16 @@ class Trainer:
             if self.options.max_epochs is not None and ran >= self.options.max_epochs:
                 break
             t0 = time.perf_counter()
+            # The weights going into this epoch are the best so far when best_weights is None.
+            previous_weights = copy.deepcopy(self.network.state_dict()) if best_weights is None else None
             phase = self.recipe.phase(epoch)
             for group in self.optimizer.param_groups:
                 group["lr"] = phase.lr
             items, n_cache = self._epoch_items(epoch, phase.snr)
+            # Workers run ahead (prefetch) so the model step never waits for the simulator.
             loader = DataLoader(items, batch_size=phase.batch_size, shuffle=False, collate_fn=collate,
-                                num_workers=self.recipe.num_workers,
-                                persistent_workers=False)
+                                num_workers=self.workers, worker_init_fn=_one_thread_worker if self.workers else None,
+                                prefetch_factor=4 if self.workers else None, persistent_workers=False)
             losses = []
             bar = _progress(loader, f"epoch {epoch + 1}/{self.recipe.epochs}", self.options.progress)
             for batch in bar:
@@ -254,17 +338,21 @@ class Trainer:
             row = {"epoch": epoch + 1, "phase_snr": f"{phase.snr[0]:g}-{phase.snr[1]:g}",
                    "batch_size": phase.batch_size, "lr": phase.lr, "train_loss": float(np.mean(losses)),
                    **metrics, "n_cache": n_cache, "trajectories_seen": seen, "epoch_s": round(epoch_s, 1),
-                   "compute_s": round(compute_s, 1)}
+                   "compute_s": round(compute_s, 1), "trajectories_per_s": round(len(items) / epoch_s, 3)}
             history.append(row)
-            state = {"epoch": epoch + 1, "model": self.network.state_dict(), "optimizer": self.optimizer.state_dict(),
+            score = metrics["val_rmsae_all"]
+            if score < best:  # the latest weights are the best: stored once, as "model"
+                best, best_epoch, best_weights = score, epoch + 1, None
+            elif best_weights is None:  # keep the previous best before the latest moves on
+                best_weights = previous_weights
+            state = {"epoch": epoch + 1, "model": self.network.state_dict(), "best_model": best_weights,
+                     "best_epoch": best_epoch, "optimizer": self.optimizer.state_dict(),
                      "rng": ckpt.rng_state(), "recipe": self.recipe.to_dict(), "tracker": self.options.tracker,
                      "task": self.spec.id, "history": history, "compute_s": compute_s, "trajectories_seen": seen,
-                     "threads": torch.get_num_threads()}
-            score = metrics["val_rmsae_all"]
-            if score < best:
-                best = score
-                ckpt.save_checkpoint(self.out / ckpt.BEST, {**state, "best": best})
-            ckpt.save_checkpoint(self.out / ckpt.LATEST, {**state, "best": best})
+                     "threads": torch.get_num_threads(), "precision": self.precision,
+                     "device": str(self.device), "workers": self.workers, "compiled": bool(self.options.compile),
+                     "best": best}
+            ckpt.save_checkpoint(self.out / ckpt.LATEST, state)
             write_log(self.out / "log.csv", history)
             plot_history(self.out / "loss.png", history, self.options.tracker)
             self.log(f"epoch {epoch + 1}: train loss {row['train_loss']:.4f}, val loss {metrics['val_loss']:.4f}, "
@@ -280,7 +368,8 @@ class Trainer:
                 "resolution": None if self.tracker.resolution is None else list(self.tracker.resolution),
                 "dataset": None if self.options.dataset is None else str(self.options.dataset),
                 "train_cache": None if self.train_cache_dir is None else str(self.train_cache_dir),
-                "threads": torch.get_num_threads(), "torch": torch.__version__}
+                "threads": torch.get_num_threads(), "torch": torch.__version__, "precision": self.precision,
+                "compile": bool(self.options.compile), "workers": self.workers, "device": str(self.device)}
 
 
 def _available(folder: Path) -> list[int]:
