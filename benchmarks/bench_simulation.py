@@ -7,22 +7,68 @@ depend on the signal). Each backend simulates the same scenes with the same seed
 pyroomacoustics backend (slow) may be run on the first few scenes only, and the speed-up is
 computed on the scenes both ran.
 
-    .venv/bin/python benchmarks/bench_simulation.py --scenes 20 --pra-scenes 20
+For the builtin backend the process CPU time is also broken down by stage (the engine's
+functions are wrapped with timers): image sources (``rir.render_images``), tail (level fit
+``rir.tail_level`` plus noise and envelope ``rir.shared_tail``), early convolution (the
+per-segment ``convolve_trajectory`` of the early parts) and tail convolution (one long FFT
+convolution per microphone, ``add_tail_convolution_``); "other" is the rest (validation,
+image enumeration, planning, copies).
+
+    nice -n 10 .venv/bin/python benchmarks/bench_simulation.py --scenes 10 --pra-scenes 3 --threads 1
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import time
 
 import numpy as np
 import torch
 
-from doabench.results.provenance import cpu_name as _cpu_name
+from doabench.acoustics import rir as engine
+from doabench.acoustics import simulators
 from doabench.acoustics.scenes import SceneDistribution, sample_scene
 from doabench.acoustics.simulators import get_simulator
+from doabench.results.provenance import cpu_name as _cpu_name
+
+STAGES = {  # stage -> (module, function name)
+    "image sources": [(engine, "render_images")],
+    "tail": [(engine, "tail_level"), (engine, "shared_tail")],
+    "early conv": [(simulators, "convolve_trajectory")],
+    "tail conv": [(simulators, "add_tail_convolution_")],
+}
 
 
+class StageTimer:
+    """Process CPU time spent in the functions of STAGES while ``active`` (outermost calls only)."""
+
+    def __init__(self) -> None:
+        self.active = False
+        self.totals = {name: 0.0 for name in STAGES}
+        self._depth = 0
+        for stage, targets in STAGES.items():
+            for module, fname in targets:
+                setattr(module, fname, self._wrap(stage, getattr(module, fname)))
+
+    def _wrap(self, stage, fn):
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            if not self.active or self._depth:
+                return fn(*args, **kwargs)
+            self._depth += 1
+            c0 = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.totals[stage] += time.process_time() - c0
+                self._depth -= 1
+
+        return timed
+
+    def take(self) -> dict[str, float]:
+        out, self.totals = self.totals, {name: 0.0 for name in STAGES}
+        return out
 
 
 def main() -> None:
@@ -36,6 +82,7 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
 
+    timer = StageTimer()
     dist = SceneDistribution(p_static=0.0)
     scenes = [sample_scene(dist, args.seed + i) for i in range(args.scenes)]
     signal = np.random.default_rng(args.seed).standard_normal(int(dist.duration_s * dist.fs)).astype(np.float32)
@@ -48,8 +95,10 @@ def main() -> None:
     backends["builtin"].simulate(sc.room, sc.trajectory[:4], sc.array_position + sc.mic_positions,
                                  signal[:16000], dist.fs, seed=0)
 
+    cuda = backends["builtin"].device.type == "cuda"
     times: dict[str, list[float]] = {name: [] for name in backends}
     cpu: dict[str, list[float]] = {name: [] for name in backends}  # process CPU time, all threads
+    stages: list[dict[str, float]] = []
     print("wall time per trajectory (process CPU time in parentheses)")
     print(f"{'scene':>5} {'room (m)':>16} {'T60':>5} " + " ".join(f"{n:>16}" for n in backends))
     load_before = os.getloadavg()
@@ -60,11 +109,17 @@ def main() -> None:
             if name == "pyroomacoustics" and i >= args.pra_scenes:
                 row.append(f"{'-':>16}")
                 continue
-            if sim.name == "builtin" and sim.device.type == "cuda":
+            if name == "builtin" and cuda:
                 torch.cuda.synchronize()
+            timer.active = name == "builtin" and not cuda
             t0, c0 = time.perf_counter(), time.process_time()
             y = sim.simulate(sc.room, sc.trajectory, mics, signal, dist.fs, seed=sc.seed)
             dt, dc = time.perf_counter() - t0, time.process_time() - c0
+            timer.active = False
+            if name == "builtin" and not cuda:
+                st = timer.take()
+                st["other"] = dc - sum(st.values())
+                stages.append(st)
             assert y.shape == (len(mics), len(signal)) and np.all(np.isfinite(y))
             times[name].append(dt)
             cpu[name].append(dc)
@@ -87,8 +142,18 @@ def main() -> None:
     if "pyroomacoustics" in times and times["pyroomacoustics"]:
         n = len(times["pyroomacoustics"])
         b, p = np.array(times["builtin"][:n]), np.array(times["pyroomacoustics"])
-        print(f"\nspeed-up on the {n} common scenes: {p.sum() / b.sum():.1f}x (total time), "
-              f"median per scene {np.median(p / b):.1f}x")
+        bc, pc = np.array(cpu["builtin"][:n]), np.array(cpu["pyroomacoustics"])
+        print(f"\nspeed-up on the {n} common scenes: {p.sum() / b.sum():.1f}x (total wall time), "
+              f"{pc.sum() / bc.sum():.1f}x (total CPU time), median per scene {np.median(p / b):.1f}x")
+    if stages:
+        names = list(stages[0])
+        mean = {k: float(np.mean([s[k] for s in stages])) for k in names}
+        total = sum(mean.values())
+        print("\nbuiltin, mean process CPU s per trajectory by stage:")
+        print("| " + " | ".join(names) + " | total |")
+        print("|" + "---|" * (len(names) + 1))
+        print("| " + " | ".join(f"{mean[k]:.3f} ({100 * mean[k] / total:.0f} %)" for k in names)
+              + f" | {total:.3f} |")
 
 
 if __name__ == "__main__":

@@ -283,3 +283,96 @@ def test_simulation_leaves_global_settings_alone(builtin):
     get_simulator("pyroomacoustics").rirs(room, src, mics, FS, seed=0)
     assert torch.get_num_threads() == threads
     assert pra.constants.get("rir_hpf_enable") == hpf and pra.constants.get("frac_delay_length") == fdl
+
+
+# ------------------------------------------------------------------ shared diffuse tail
+
+
+def _moving_scene(t60=0.6, n_points=12):
+    room = Room((6.5, 5.0, 3.0), t60, WEIGHTS)
+    src = np.linspace([1.0, 1.2, 1.1], [2.5, 3.8, 1.6], n_points)
+    mics = np.array([[4.8, 3.6, 1.3], [4.75, 3.55, 1.35], [4.85, 3.5, 1.25], [4.7, 3.65, 1.3]])
+    return room, src, mics
+
+
+def _parts(room, src, mics, seed):
+    gen = engine.make_generator(seed, torch.device("cpu"))
+    return engine.image_source_parts(room, torch.tensor(src), torch.tensor(mics), FS, gen)
+
+
+@pytest.mark.parametrize("t60", [0.3, 0.6, 1.0])
+def test_shared_tail_decays_at_the_target_t60(t60):
+    room, src, mics = _moving_scene(t60)
+    parts = _parts(room, src, mics, seed=21)
+    assert parts.tail.shape == (len(mics), parts.layout.n_taps - parts.layout.n_diff)
+    for m in range(len(mics)):
+        # the tail spans 28 dB (Tdiff at -12 dB, Tmax at -40 dB): fit -5..-15 dB, where the
+        # truncation's bend of the Schroeder curve is negligible
+        h = parts.tail[m].numpy().astype(np.float64)
+        edc = 10 * np.log10(np.cumsum(h[::-1] ** 2)[::-1] / np.sum(h**2))
+        i5, i15 = int(np.argmax(edc <= -5)), int(np.argmax(edc <= -15))
+        slope = np.polyfit(np.arange(i5, i15) / FS, edc[i5:i15], 1)[0]
+        assert -60.0 / slope == pytest.approx(t60, rel=0.05)
+
+
+def test_shared_tail_continues_the_early_energy_within_1_db(builtin):
+    room, src, mics = _moving_scene(0.6)
+    h = builtin.rirs(room, src, mics, FS, seed=5).astype(np.float64)
+    n_diff = round(room.diffuse_start() * FS)
+    k = engine.decay_rate(room.t60) / FS
+    w = n_diff // 2
+    before = np.arange(n_diff - w, n_diff)
+    after = np.arange(n_diff, n_diff + w)
+    e_before = np.mean(h[..., before] ** 2 * np.exp(k * before))  # decay-compensated, all points and mics
+    e_after = np.mean(h[..., after] ** 2 * np.exp(k * after))
+    assert abs(10 * np.log10(e_after / e_before)) <= 1.0
+    # one tail for every point, independent per microphone
+    assert np.array_equal(h[0, :, n_diff:], h[-1, :, n_diff:])
+    assert abs(np.corrcoef(h[0, :2, n_diff + 200 :])[0, 1]) < 0.1
+
+
+def test_early_part_and_direct_path_are_the_per_point_engines(builtin):
+    room, src, mics = _moving_scene(0.5, n_points=5)
+    h = builtin.rirs(room, src, mics, FS, seed=2)
+    layout, delays = engine.plan(room, torch.tensor(src), torch.tensor(mics), FS)
+    images = engine.enumerate_images(room, (layout.n_early + engine.SINC_HALF) / FS * SPEED_OF_SOUND)
+    for s in range(len(src)):  # one point at a time, as a per-point engine renders it
+        early = engine.render_images(images, torch.tensor(src[s : s + 1]), torch.tensor(mics), FS, layout.n_early)
+        assert np.allclose(h[s, :, : layout.n_diff], early[0, :, : layout.n_diff].numpy(),
+                           rtol=0, atol=1e-6 * float(early.abs().max()))
+        # direct path: the peak sits at the geometric delay; inter-microphone lags agree
+        d = delays[s].numpy()
+        peaks = np.array([int(d[m]) - 2 + int(np.argmax(np.abs(h[s, m, int(d[m]) - 2 : int(d[m]) + 4])))
+                          for m in range(len(mics))])
+        assert np.all(np.abs(peaks - d) <= 1)
+        assert np.all(np.abs((peaks - peaks[0]) - (d - d[0])) <= 1)
+
+
+def test_moving_source_simulation_is_reproducible_and_equals_rir_convolution(builtin):
+    room, src, mics = _moving_scene(0.45, n_points=9)
+    x = np.random.default_rng(3).standard_normal(9000).astype(np.float32)
+    y = builtin.simulate(room, src, mics, x, FS, seed=17)
+    assert np.array_equal(y, builtin.simulate(room, src, mics, x, FS, seed=17))  # bitwise, same seed
+    assert not np.array_equal(y, builtin.simulate(room, src, mics, x, FS, seed=18))
+    h = builtin.rirs(room, src, mics, FS, seed=17)
+    ref = convolve_trajectory(torch.as_tensor(h), torch.as_tensor(x)).numpy()
+    assert np.allclose(y, ref, rtol=0, atol=1e-5 * np.abs(ref).max())
+    # static source: the shared tail is the per-point tail (same draw), simulate = its convolution
+    y1 = builtin.simulate(room, src[:1], mics, x, FS, seed=17)
+    h1 = builtin.rirs(room, src[:1], mics, FS, seed=17)
+    ref1 = np.stack([fftconvolve(x, h1[0, m])[: len(x)] for m in range(len(mics))])
+    assert np.allclose(y1, ref1, rtol=0, atol=1e-5 * np.abs(ref1).max())
+
+
+def test_pyroomacoustics_backend_uses_the_shared_tail():
+    room = Room((4.0, 3.5, 2.6), 0.3, WEIGHTS)
+    src = np.array([[1.0, 1.0, 1.3], [1.3, 1.2, 1.3]])
+    mics = np.array([[2.8, 2.2, 1.1], [2.9, 2.3, 1.2]])
+    pra_sim = get_simulator("pyroomacoustics")
+    hp = pra_sim.rirs(room, src, mics, FS, seed=9)
+    n_early = round(room.diffuse_start() * FS)
+    assert np.array_equal(hp[0, :, n_early:], hp[1, :, n_early:])
+    x = np.random.default_rng(4).standard_normal(3000).astype(np.float32)
+    y = pra_sim.simulate(room, src, mics, x, FS, seed=9)
+    ref = convolve_trajectory(torch.as_tensor(hp), torch.as_tensor(x)).numpy()
+    assert np.allclose(y, ref, rtol=0, atol=1e-5 * np.abs(ref).max())

@@ -7,14 +7,21 @@ Model (details and rationale in docs/simulation.md, "Room impulse responses"):
   ``prod(beta) / (4 pi d)`` at delay ``d / c``, band-limited by a Hann-windowed sinc centred on
   the exact (fractional) arrival time; the window spans +-(SINC_HALF + 1) samples, so an image
   touches 2 * SINC_HALF + 1 = 33 samples (34 when the delay is fractional). No high-pass filter.
-* **Diffuse tail, ``[Tdiff, Tmax)``**: Gaussian noise, independent for every (source point, mic)
-  pair, with a power envelope ``A**2 * exp(-ln(10**6) t / T60)`` (60 dB per T60). ``A**2`` is
-  fitted to the energy of the image-source part in ``[Tdiff / 2, Tdiff)`` (the direct sound
-  excluded) so the tail continues the ISM's energy envelope.
+* **Diffuse tail, ``[Tdiff, Tmax)``**: Gaussian noise with a power envelope
+  ``A**2 * exp(-ln(10**6) t / T60)`` (60 dB per T60), **one per microphone, shared by every
+  point of a batch (trajectory)** (:func:`shared_tail`). ``A**2`` is fitted per (point, mic) to
+  the energy of the image-source part in ``[Tdiff / 2, Tdiff)`` (the direct sound excluded) so
+  the tail continues the ISM's energy envelope (:func:`tail_level`), and energy-averaged over
+  the points. Why shared: the late field is diffuse, its decay and level hardly depend on the
+  source position, and a position-independent tail lets a moving source's whole signal be
+  convolved once per microphone with it while only the short early part (~Tdiff fs taps instead
+  of ~Tmax fs) is convolved per trajectory segment (:class:`RirParts`,
+  ``simulators.convolve_parts``). For one point (a static source) the result is the per-point
+  model's; :func:`write_diffuse_tail_` keeps that model (independent per point) for comparisons.
 
 Speed: the sinc is not evaluated per image. Images are accumulated (linear interpolation) into
 an OVERSAMPLE-times finer time grid, and one strided convolution whose kernel holds every
-windowed-sinc phase turns the fine grid into samples. This turns 34 scattered writes per image
+windowed-sinc phase turns the fine grid into samples . This turns 34 scattered writes per image
 into 2, and the sinc into a dense, batched convolution. The per-image work runs in cache-sized
 slices, single-threaded (see :func:`single_threaded`).
 """
@@ -39,6 +46,7 @@ _CHUNK_ELEMENTS = 4_000_000  # bounds the temporaries of one chunk of trajectory
 # Elements (mics x images) per step of the per-image work: the temporaries stay in cache (the
 # work is memory-bound; DRAM-sized temporaries were 2x slower).
 _SLICE_ELEMENTS = 98304
+TAIL_MODEL = "shared: one diffuse tail per microphone for all trajectory points"  # provenance
 
 
 # --------------------------------------------------------------------------------------------
@@ -270,10 +278,10 @@ def render_images(
     r2 = rel[0] * rel[0]
     r2.addcmul_(rel[1], rel[1]).addcmul_(rel[2], rel[2])
     flat = (r2.view(-1) <= reach * reach).nonzero().squeeze(1)  # (K,) into the (P, I) grid
-    pos = torch.stack([r.view(-1)[flat] for r in rel])  # (3, K) image positions
-    pos_sq = r2.view(-1)[flat]
+    pos = torch.stack([r.view(-1).index_select(0, flat) for r in rel])  # (3, K) image positions
+    pos_sq = r2.view(-1).index_select(0, flat)  # (index_select: 1.4x faster than [flat] here)
     p_idx = flat // len(images)
-    amp = gain[flat - p_idx * len(images)]
+    amp = gain.index_select(0, flat - p_idx * len(images))
     del rel, r2, flat
 
     # Fine-grid buffer per (point, mic) row: (half + 1) * over columns of left padding for the
@@ -292,6 +300,7 @@ def render_images(
     row_start = (p_idx * (M * width) + (half + 1) * over).to(index_dtype)  # (K,) (point, mic 0)
     mic_start = (torch.arange(M, device=device)[:, None] * width).to(index_dtype)  # (M, 1)
     mic_sq = (mic * mic).sum(1, keepdim=True)
+    index_buf = torch.empty(M * max(1, _SLICE_ELEMENTS // M), dtype=torch.int64, device=device)
 
     # Slices of images small enough that the (M, slice) temporaries stay in cache; the work is
     # memory-bound, and DRAM-sized temporaries made it 2-3x slower.
@@ -309,10 +318,12 @@ def render_images(
             w0 = amp[k0:k1] / dist
             t = dist.mul_(to_samples * over)  # arrival on the fine grid, >= 0
             q = t.to(index_dtype)  # floor (t >= 0); float -> int32 is 10x cheaper than -> int64
-            frac = t.sub_(q)
+            frac = t.frac_()  # = t - q exactly (t >= 0), without converting q back to float
             w1 = w0 * frac
             w0.sub_(w1)
-            index = q.add_(row_start[k0:k1]).add_(mic_start).to(torch.int64).view(-1)
+            index = index_buf[: M * (k1 - k0)].view(M, k1 - k0)  # int64 straight from the adds
+            torch.add(q, row_start[k0:k1], out=index).add_(mic_start)
+            index = index.view(-1)
             accumulate_(buf[:-1], index, w0.view(-1))
             accumulate_(buf[1:], index, w1.view(-1))
 
@@ -372,10 +383,36 @@ def draw_tail_noise(
     """Standard normal noise ``(S, M, n_taps - n_diff)`` float32 on ``generator``'s device.
 
     Drawn in one call for the whole batch, so the tail of a given seed does not depend on how
-    the engine chunks the points (nor on the backend that computed the early part).
+    the engine chunks the points (nor on the backend that computed the early part). The engine
+    itself draws ``S = 1`` (one shared tail, :func:`shared_tail`).
     """
     n = max(layout.n_taps - layout.n_diff, 0)
     return torch.randn(n_points, n_mics, n, generator=generator, device=generator.device, dtype=torch.float32)
+
+
+def shared_tail(
+    levels: torch.Tensor | None, room: Room, fs: int, layout: RirLayout, generator: torch.Generator
+) -> torch.Tensor | None:
+    """The position-independent diffuse tail ``(M, n_taps - n_diff)`` float32, added to every
+    point's RIR from sample ``n_diff`` on (None when T60 = 0 or there is no tail).
+
+    ``levels`` ``(S, M)`` float64: the per-(point, mic) fitted levels of :func:`tail_level`; the
+    tail of mic ``m`` has power envelope ``mean_s(levels[s, m]) exp(-k t)`` (the energy-average
+    over the trajectory) and its own Gaussian noise, drawn here in one call (``(1, M, n)``, so a
+    static source gets the same tail as a per-point engine would draw for it).
+
+    Why one tail for the whole trajectory: the late field is diffuse, its statistics (decay rate,
+    level within a fraction of a dB over a room) hardly depend on where the source is, while its
+    fine structure is noise anyway. A shared tail lets :meth:`Simulator.simulate` convolve the
+    whole signal once per microphone with it instead of once per trajectory point.
+    """
+    if levels is None or room.t60 == 0 or layout.n_taps <= layout.n_diff:
+        return None
+    noise = draw_tail_noise(1, levels.shape[1], layout, generator)[0]
+    n = torch.arange(layout.n_diff, layout.n_taps, device=noise.device, dtype=torch.float64)
+    env = torch.exp(-0.5 * decay_rate(room.t60) * n / fs).to(torch.float32)  # amplitude
+    noise.mul_(levels.to(noise.device).mean(0).sqrt().to(torch.float32)[:, None])
+    return noise.mul_(env)
 
 
 def write_diffuse_tail_(
@@ -386,13 +423,15 @@ def write_diffuse_tail_(
     delays: torch.Tensor,
     noise: torch.Tensor | None,
 ) -> torch.Tensor:
-    """Complete RIRs in place and return ``rirs``.
+    """Complete RIRs in place with *independent* tails per (point, mic) and return ``rirs``
+    (the previous engine's model; the backends now use :func:`shared_tail`, this stays for
+    comparisons and tests).
 
     ``rirs`` ``(P, M, >= n_taps)`` float32 holds the image-source part in its first ``n_early``
     samples; samples ``[n_early, n_taps)`` are overwritten with the tail (zeros when T60 = 0):
     ``noise`` ``(P, M, n_taps - n_diff)`` (:func:`draw_tail_noise`, used up as scratch) shaped by
-    the decaying envelope, added from ``n_diff`` on. Independent noise for every (point, mic)
-    pair. ``delays`` ``(P, M)``: direct-path delays in samples (:func:`tail_level`).
+    the decaying envelope, added from ``n_diff`` on. ``delays`` ``(P, M)``: direct-path delays in
+    samples (:func:`tail_level`).
     """
     if noise is None or room.t60 == 0 or layout.n_taps <= layout.n_diff:
         rirs[..., layout.n_early : layout.n_taps] = 0.0
@@ -408,19 +447,51 @@ def write_diffuse_tail_(
     return rirs
 
 
+@dataclass(frozen=True)
+class RirParts:
+    """A batch of RIRs as an early part per point plus one shared tail.
+
+    ``early`` ``(S, M, >= n_early)`` float32: the image-source part in samples ``[0, n_early)``,
+    zeros after; ``tail`` ``(M, n_taps - n_diff)`` float32 or None: the diffuse tail shared by
+    every point, starting at sample ``n_diff`` (overlapping the early part when the direct sound
+    arrives after Tdiff). The RIR of point ``s`` is ``early[s]`` plus ``tail`` from ``n_diff``.
+    """
+
+    early: torch.Tensor
+    tail: torch.Tensor | None
+    layout: RirLayout
+
+    def full(self, width: int | None = None) -> torch.Tensor:
+        """The complete RIRs ``(S, M, width)`` (default ``n_taps``; zeros after ``n_taps``)."""
+        lay = self.layout
+        S, M, have = self.early.shape
+        width = lay.n_taps if width is None else max(int(width), lay.n_taps)
+        if have >= width:
+            out = self.early[..., :width].clone()
+        else:
+            out = torch.zeros(S, M, width, dtype=torch.float32, device=self.early.device)
+            out[..., : lay.n_early] = self.early[..., : lay.n_early]
+        if self.tail is not None:
+            out[..., lay.n_diff : lay.n_taps] += self.tail
+        return out
+
+
 # --------------------------------------------------------------------------------------------
 # the whole engine
 
 
-def _points_per_chunk(room: Room | None, n_mics: int, n_images: int, layout: RirLayout, fs: int) -> int:
-    """Points per chunk so that one chunk's largest temporaries stay near _CHUNK_ELEMENTS."""
+def _points_per_chunk(
+    room: Room | None, n_mics: int, n_images: int, layout: RirLayout, fs: int, n_out: int | None = None
+) -> int:
+    """Points per chunk so that one chunk's largest temporaries stay near _CHUNK_ELEMENTS
+    (``n_out``: samples per output row, default ``n_taps``)."""
     reach = (layout.n_early + SINC_HALF) / fs * SPEED_OF_SOUND
     heard = n_images if room is None else min(n_images, 4.2 * reach**3 / room.volume + 1)
     per_point = max(
         n_images,  # (P, I) pruning distances
         n_mics * heard,  # (M, K) per-image work
         n_mics * OVERSAMPLE * (layout.n_early + 2 * SINC_HALF + 2 * _BLOCK + 8),  # fine-grid buffer
-        n_mics * layout.n_taps,  # output
+        n_mics * (layout.n_taps if n_out is None else n_out),  # output
     )
     return max(1, int(_CHUNK_ELEMENTS // per_point))
 
@@ -431,6 +502,44 @@ def plan(room: Room | None, sources: torch.Tensor, mics: torch.Tensor, fs: int) 
     return rir_layout(room, float(delays.max()) if delays.numel() else 0.0, fs), delays
 
 
+def image_source_parts(
+    room: Room,
+    sources: torch.Tensor,
+    mics: torch.Tensor,
+    fs: int,
+    generator: torch.Generator,
+    width: int | None = None,
+) -> RirParts:
+    """Early parts ``(S, M, width)`` and the shared tail (:class:`RirParts`) from ``sources``
+    ``(S, 3)`` to ``mics`` ``(M, 3)`` (tensors on the device to compute on, room coordinates,
+    already validated).
+
+    ``width`` (>= n_early, default n_early): width of the early tensor, zeros after ``n_early``,
+    e.g. an FFT length, which spares the FFT a padded copy. Points are processed in chunks to
+    bound memory; the per-(point, mic) tail levels are fitted chunk by chunk and averaged at the
+    end, and the tail noise is drawn once, so equal inputs and seed give equal outputs whatever
+    the chunking.
+    """
+    layout, delays = plan(room, sources, mics, fs)
+    horizon_m = (layout.n_early + SINC_HALF) / fs * SPEED_OF_SOUND
+    images = enumerate_images(room, horizon_m) if room.t60 > 0 else direct_images()
+    S, M = sources.shape[0], mics.shape[0]
+    width = layout.n_early if width is None else max(int(width), layout.n_early)
+    early = torch.empty(S, M, width, dtype=torch.float32, device=sources.device)
+    fit = room.t60 > 0 and layout.n_taps > layout.n_diff
+    levels = torch.empty(S, M, dtype=torch.float64, device=sources.device) if fit else None
+    step = _points_per_chunk(room, M, len(images), layout, fs, width)
+    scratch: list = []
+    for p0 in range(0, S, step):
+        p1 = min(S, p0 + step)
+        chunk = render_images(images, sources[p0:p1], mics, fs, layout.n_early, out=early[p0:p1], workspace=scratch)
+        if levels is not None:
+            levels[p0:p1] = tail_level(chunk, room, fs, layout, delays[p0:p1])
+    if width > layout.n_early:
+        early[..., layout.n_early :] = 0.0
+    return RirParts(early, shared_tail(levels, room, fs, layout, generator), layout)
+
+
 def image_source_rirs(
     room: Room,
     sources: torch.Tensor,
@@ -439,34 +548,9 @@ def image_source_rirs(
     generator: torch.Generator,
     width: int | None = None,
 ) -> torch.Tensor:
-    """RIRs ``(S, M, n_taps)`` float32 from ``sources`` ``(S, 3)`` to ``mics`` ``(M, 3)`` (tensors
-    on the device to compute on, room coordinates, already validated).
-
-    ``width`` (>= n_taps, see :func:`plan`): return ``(S, M, width)`` with zeros after ``n_taps``
-    instead, e.g. an FFT length, which spares the FFT a padded copy.
-
-    Points are processed in chunks to bound memory; the tail noise is drawn for all points at
-    once first (:func:`draw_tail_noise`), so equal inputs and seed give equal outputs whatever
-    the chunking.
-    """
-    layout, delays = plan(room, sources, mics, fs)
-    horizon_m = (layout.n_early + SINC_HALF) / fs * SPEED_OF_SOUND
-    images = enumerate_images(room, horizon_m) if room.t60 > 0 else direct_images()
-    S, M = sources.shape[0], mics.shape[0]
-    width = layout.n_taps if width is None else max(int(width), layout.n_taps)
-    out = torch.empty(S, M, width, dtype=torch.float32, device=sources.device)
-    noise = draw_tail_noise(S, M, layout, generator) if room.t60 > 0 else None
-    step = _points_per_chunk(room, M, len(images), layout, fs)
-    scratch: list = []
-    for p0 in range(0, S, step):
-        p1 = min(S, p0 + step)
-        render_images(images, sources[p0:p1], mics, fs, layout.n_early, out=out[p0:p1], workspace=scratch)
-        write_diffuse_tail_(
-            out[p0:p1], room, fs, layout, delays[p0:p1], None if noise is None else noise[p0:p1]
-        )
-    if width > layout.n_taps:
-        out[..., layout.n_taps :] = 0.0
-    return out
+    """Complete RIRs ``(S, M, n_taps)`` float32 (``(S, M, width)`` zero-padded when ``width`` >
+    n_taps): :func:`image_source_parts` with the shared tail added to every point."""
+    return image_source_parts(room, sources, mics, fs, generator).full(width)
 
 
 def direct_rirs(sources: torch.Tensor, mics: torch.Tensor, fs: int) -> torch.Tensor:

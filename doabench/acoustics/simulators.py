@@ -180,6 +180,39 @@ def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor, n_taps: int | 
     return out.view(M, -1)[:, :L]
 
 
+def add_tail_convolution_(out: torch.Tensor, signal: torch.Tensor, tail: torch.Tensor, start: int) -> torch.Tensor:
+    """``out[m, start + k] += (signal * tail[m])[k]`` for ``k < L - start``; returns ``out``.
+
+    ``out`` ``(M, L)``, ``signal`` ``(L,)``, ``tail`` ``(M, N)`` float32 (the shared diffuse tail
+    of :class:`~doabench.acoustics.rir.RirParts`, which starts at sample ``start``). One FFT
+    convolution of the whole signal per microphone, the signal's spectrum computed once: since
+    the tail is the same for every trajectory point, the sum over segments of ``segment * tail``
+    is ``signal * tail``.
+    """
+    M, L = out.shape
+    n_out = L - int(start)
+    if n_out <= 0 or tail.shape[-1] == 0:
+        return out
+    nfft = next_fast_len(n_out + tail.shape[-1] - 1, real=True)
+    spec = _rfft(tail.to(torch.float32), nfft)  # (M, nfft // 2 + 1)
+    spec *= _rfft(signal[:n_out].to(device=tail.device, dtype=torch.float32), nfft)
+    y = _irfft(spec, nfft)
+    out[:, start:] += y[:, :n_out]
+    return out
+
+
+def convolve_parts(parts: engine.RirParts, signal: torch.Tensor) -> torch.Tensor:
+    """Moving-source convolution ``(M, L)`` float32 with RIRs given as early parts plus a shared
+    tail: :func:`convolve_trajectory` of the early parts (short FFTs, ~Tdiff fs) plus one long
+    convolution of the whole signal with the tail (:func:`add_tail_convolution_`). Equals
+    ``convolve_trajectory(parts.full(), signal)`` to float32 rounding."""
+    lay = parts.layout
+    out = convolve_trajectory(parts.early, signal, lay.n_early)
+    if parts.tail is not None:
+        add_tail_convolution_(out, signal.to(out.device), parts.tail, lay.n_diff)
+    return out
+
+
 def direct_path(
     room: Room | None,
     sources: np.ndarray,
@@ -216,13 +249,23 @@ def _threads(device: torch.device):
 
 
 class _TorchBackend:
-    """Shared ``rirs``/``simulate`` plumbing; subclasses implement ``rirs_tensor``."""
+    """Shared ``rirs``/``simulate`` plumbing. Subclasses implement ``rirs_parts`` (early parts
+    plus a shared tail, :class:`~doabench.acoustics.rir.RirParts`; the fast path) or only
+    ``rirs_tensor`` (complete RIRs, convolved per trajectory point)."""
 
     name = "?"
     device: torch.device
 
+    def rirs_parts(
+        self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator, width: int | None = None
+    ) -> engine.RirParts | None:
+        return None
+
     def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
-        raise NotImplementedError
+        parts = self.rirs_parts(room, sources, mics, fs, generator)
+        if parts is None:
+            raise NotImplementedError
+        return parts.full()
 
     def rirs(self, room: Room, sources, mics, fs: int, *, seed=None) -> np.ndarray:
         """RIRs ``(S, M, n_taps)`` float32, ``n_taps = round(Tmax fs)`` (direct path only when
@@ -234,13 +277,20 @@ class _TorchBackend:
 
     def simulate(self, room: Room, sources, mics, signal, fs: int, *, seed=None) -> np.ndarray:
         """Signals ``(M, L)`` float32 of ``signal`` ``(L,)`` moving along ``sources`` ``(S, 3)``;
-        equals :func:`convolve_trajectory` of :meth:`rirs` with the same seed."""
+        equals :func:`convolve_trajectory` of :meth:`rirs` with the same seed (to float32
+        rounding where the backend has a shared tail)."""
         src, mic, fs = prepare_geometry(room, sources, mics, fs)
         x = _signal(signal)
         gen = engine.make_generator(seed, self.device)
+        xt = torch.as_tensor(x, device=self.device)
         with _threads(self.device):
+            layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mic), fs)
+            nfft = trajectory_fft_size(len(x), len(src), layout.n_early)
+            parts = self.rirs_parts(room, src, mic, fs, gen, width=nfft)  # zero-padded: no copy in the FFT
+            if parts is not None:
+                return convolve_parts(parts, xt).cpu().numpy()
             h = self.rirs_tensor(room, src, mic, fs, gen)
-            return convolve_trajectory(h, torch.as_tensor(x, device=self.device)).cpu().numpy()
+            return convolve_trajectory(h, xt).cpu().numpy()
 
 
 class BuiltinSimulator(_TorchBackend):
@@ -261,26 +311,15 @@ class BuiltinSimulator(_TorchBackend):
             "device": str(self.device),
             "sinc": f"hann-windowed, {2 * engine.SINC_HALF + 1} taps, 1/{engine.OVERSAMPLE}-sample grid",
             "hpf": "none",
+            "tail": engine.TAIL_MODEL,
         }
 
-    def rirs_tensor(
+    def rirs_parts(
         self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator, width: int | None = None
-    ) -> torch.Tensor:
+    ) -> engine.RirParts:
         src = torch.tensor(sources, device=self.device)
         mic = torch.tensor(mics, device=self.device)
-        return engine.image_source_rirs(room, src, mic, fs, generator, width)
-
-    def simulate(self, room: Room, sources, mics, signal, fs: int, *, seed=None) -> np.ndarray:
-        """Signals ``(M, L)`` float32 of ``signal`` ``(L,)`` moving along ``sources`` ``(S, 3)``;
-        equals :func:`convolve_trajectory` of :meth:`rirs` with the same seed."""
-        src, mic, fs = prepare_geometry(room, sources, mics, fs)
-        x = _signal(signal)
-        gen = engine.make_generator(seed, self.device)
-        layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mic), fs)
-        nfft = trajectory_fft_size(len(x), len(src), layout.n_taps)
-        with _threads(self.device):
-            h = self.rirs_tensor(room, src, mic, fs, gen, width=nfft)  # zero-padded: no copy in the FFT
-            return convolve_trajectory(h, torch.as_tensor(x, device=self.device), layout.n_taps).cpu().numpy()
+        return engine.image_source_parts(room, src, mic, fs, generator, width)
 
 
 _PRA_WALLS = ("west", "east", "south", "north", "floor", "ceiling")  # = x0, x1, y0, y1, z0, z1
@@ -294,7 +333,8 @@ class PyroomacousticsSimulator(_TorchBackend):
     ray tracing, no randomised ISM; ``max_order`` = the highest reflection order among the images
     that reach Tdiff. Its RIRs are shifted back by its ``frac_delay_length // 2`` global delay and
     scaled by ``1 / (4 pi)`` (pyroomacoustics uses ``1 / r``), cut at Tdiff, and the builtin's
-    diffuse tail is added from there.
+    shared diffuse tail (:func:`doabench.acoustics.rir.shared_tail`, fitted to these early parts)
+    is added from there, so builtin and pyroomacoustics differ only in their image sources.
     """
 
     name = "pyroomacoustics"
@@ -318,7 +358,8 @@ class PyroomacousticsSimulator(_TorchBackend):
     def versions(self) -> dict[str, str]:
         import pyroomacoustics as pra
 
-        out = {"backend": self.name, "pyroomacoustics": pra.__version__, "torch": torch.__version__}
+        out = {"backend": self.name, "pyroomacoustics": pra.__version__, "torch": torch.__version__,
+               "tail": engine.TAIL_MODEL}
         out.update({k: str(v) for k, v in self.settings().items()})
         return out
 
@@ -369,16 +410,20 @@ class PyroomacousticsSimulator(_TorchBackend):
                         early[s0 + k, m, : len(h)] = h / (4 * math.pi)
         return early
 
-    def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
+    def rirs_parts(
+        self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator, width: int | None = None
+    ) -> engine.RirParts:
         src = torch.tensor(sources, device=self.device)
         mic = torch.tensor(mics, device=self.device)
         delays = engine.direct_delays(src, mic, fs)
         layout = engine.rir_layout(room, float(delays.max()), fs)
-        early = self.early_part(room, sources, mics, fs, layout)
-        out = torch.empty(len(sources), len(mics), layout.n_taps, dtype=torch.float32, device=self.device)
-        out[..., : layout.n_early] = torch.as_tensor(early, device=self.device)
-        noise = engine.draw_tail_noise(len(sources), len(mics), layout, generator) if room.t60 > 0 else None
-        return engine.write_diffuse_tail_(out, room, fs, layout, delays, noise)
+        width = layout.n_early if width is None else max(int(width), layout.n_early)
+        early = torch.zeros(len(sources), len(mics), width, dtype=torch.float32, device=self.device)
+        early[..., : layout.n_early] = torch.as_tensor(self.early_part(room, sources, mics, fs, layout), device=self.device)
+        levels = None
+        if room.t60 > 0 and layout.n_taps > layout.n_diff:
+            levels = engine.tail_level(early[..., : layout.n_early], room, fs, layout, delays)
+        return engine.RirParts(early, engine.shared_tail(levels, room, fs, layout, generator), layout)
 
 
 GPURIR_INSTALL = (
