@@ -82,13 +82,20 @@ def resolve_precision(precision: str, device: torch.device) -> str:
     return precision
 
 
+def available_cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def default_workers(requested: int) -> int:
-    """Worker processes that do not oversubscribe the machine: at most ``cores - 1`` (the main
-    process trains on the remaining core), at least 1 when any are requested."""
+    """Worker processes that do not oversubscribe the machine: at most one per core.
+
+    On a CPU the data (simulation + features) costs more per trajectory than the model step, so
+    the training process spends much of its time waiting for batches: one worker per core plus
+    the training process (one thread each) keeps both busy without the paper preset's 4 workers
+    fighting over 2 cores."""
     if requested <= 0:
         return 0
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(requested, cores - 1))
+    return max(1, min(requested, available_cores()))
 
 
 def _one_thread_worker(_: int) -> None:
@@ -118,8 +125,6 @@ class Trainer:
 
         self.options, self.log = options, log
         self.out = Path(options.out)
-        if options.threads:
-            torch.set_num_threads(int(options.threads))
         self.spec = get_task_spec(options.task)
         self.saved = self._load_saved()
         recipe = options.recipe
@@ -155,6 +160,10 @@ class Trainer:
         self.optimizer = torch.optim.Adam(self.network.parameters(), lr=recipe.phases[0].lr)
         requested = recipe.num_workers if options.workers is None else options.workers
         self.workers = default_workers(requested) if options.workers is None else max(0, int(options.workers))
+        if options.threads:
+            torch.set_num_threads(int(options.threads))
+        elif self.device.type == "cpu" and self.workers > 0:
+            torch.set_num_threads(1)  # one thread per process: the workers use the other cores
         self.base_seed = int(self.spec.base_seed) + int(recipe.seed)
 
     # -- setup ------------------------------------------------------------------------------

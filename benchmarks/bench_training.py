@@ -1,0 +1,128 @@
+"""Training throughput of `doabench train` on this machine: where the time of one item goes, and
+freshly simulated trajectories per second end to end.
+
+Per item (process CPU time, one torch thread, so the numbers do not depend on the machine's
+load): scene drawing + simulation + noise (the builtin simulator, `sim-train` scenes), feature
+extraction (the tracker's features and network input) and the model's forward + backward + Adam
+step per trajectory at each resolution and precision (eager float32, eager bf16 autocast,
+compiled bf16 with channels-last 3D tensors). End to end: a short `Trainer` run with the
+defaults `doabench train` uses (workers, precision, compile), timed over its second epoch.
+
+    .venv/bin/python benchmarks/bench_training.py --librispeech ../shared/data/LibriSpeech \\
+        --resolutions 16x32 8x16 --items 8 --e2e 16x32 --e2e-items 60
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from doabench.results.provenance import cpu_name  # noqa: E402
+from doabench.training.recipes import paper_recipe  # noqa: E402
+from doabench.training.trainer import TrainOptions, Trainer  # noqa: E402
+
+
+def per_item_costs(tracker: str, librispeech: str, n_items: int) -> dict[str, float]:
+    """CPU seconds per item of simulation (scene, render, truth) and of the network input."""
+    opts = TrainOptions(tracker=tracker, out=Path(tempfile.mkdtemp()), recipe=paper_recipe(), librispeech=librispeech,
+                        tracker_options={"weights": "random"}, workers=0)
+    trainer = Trainer(opts, log=lambda m: None)
+    items, _ = trainer._epoch_items(0, (5.0, 30.0))
+    simulated = items.items
+    simulated[0]  # warm-up: FFT plans, speech index
+    sim_s = feat_s = 0.0
+    for k in range(1, n_items + 1):
+        t0 = time.process_time()
+        item = simulated[k]
+        t1 = time.process_time()
+        trainer.item_input(item["audio"], item["sample_vad"])
+        t2 = time.process_time()
+        sim_s, feat_s = sim_s + t1 - t0, feat_s + t2 - t1
+    return {"simulation": sim_s / n_items, "features": feat_s / n_items}
+
+
+def step_cost(resolution: str, precision: str, compiled: bool, batch: int, repeats: int = 3) -> float:
+    """CPU seconds per trajectory of one Adam step of Cross3D on a batch of random maps."""
+    from baselines.cross3d import Cross3D
+
+    n_theta, n_phi = (int(v) for v in resolution.split("x"))
+    torch.manual_seed(0)
+    model = Cross3D(n_theta, n_phi)
+    x = torch.randn(batch, 3, 103, n_theta, n_phi)
+    if compiled:
+        model = model.to(memory_format=torch.channels_last_3d)
+        x = x.contiguous(memory_format=torch.channels_last_3d)
+    forward = torch.compile(model) if compiled else model
+    opt = torch.optim.Adam(model.parameters(), 1e-4)
+    truth = torch.nn.functional.normalize(torch.randn(batch, 103, 3), dim=-1)
+
+    def step() -> None:
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
+            y = forward(x).float()
+        loss = torch.nn.functional.mse_loss(y, truth)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    step()  # warm-up (and compilation)
+    step()
+    t0 = time.process_time()
+    for _ in range(repeats):
+        step()
+    return (time.process_time() - t0) / repeats / batch
+
+
+def end_to_end(tracker: str, librispeech: str, n_items: int) -> dict[str, float]:
+    """Trajectories/s over the second epoch of a short run with `doabench train`'s defaults."""
+    from doabench.training.recipes import paper_recipe
+
+    out = Path(tempfile.mkdtemp()) / "run"
+    recipe = paper_recipe().replace(epochs=2, trajectories_per_epoch=n_items, val_trajectories=4)
+    opts = TrainOptions(tracker=tracker, out=out, recipe=recipe, librispeech=librispeech, progress=False,
+                        tracker_options={"weights": "random"}, compile=True, cache_root=out.parent / "cache")
+    history = Trainer(opts, log=lambda m: None).run()
+    shutil.rmtree(out.parent, ignore_errors=True)
+    row = history[-1]
+    return {"trajectories_per_s": row["trajectories_per_s"], "epoch_s": row["epoch_s"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--librispeech", default=os.environ.get("DOABENCH_LIBRISPEECH", "../shared/data/LibriSpeech"))
+    ap.add_argument("--resolutions", nargs="+", default=["16x32", "8x16"])
+    ap.add_argument("--items", type=int, default=8, help="items timed for the per-item costs")
+    ap.add_argument("--batch", type=int, default=10)
+    ap.add_argument("--e2e", nargs="*", default=["16x32"], help="resolutions to run end to end (none: skip)")
+    ap.add_argument("--e2e-items", type=int, default=60, help="trajectories per epoch of the end-to-end run")
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    torch.set_num_threads(1)
+    print(f"CPU: {cpu_name()}, {os.cpu_count()} cores, torch {torch.__version__}, load before {os.getloadavg()}")
+    costs = per_item_costs(f"cross3d:{args.resolutions[0]}", args.librispeech, args.items)
+    print(f"per item (CPU s, 1 thread): simulation {costs['simulation']:.3f}, features "
+          f"({args.resolutions[0]}) {costs['features']:.3f}")
+    print("| resolution | precision | step CPU s per trajectory (batch %d) |" % args.batch)
+    print("|---|---|---|")
+    for res in args.resolutions:
+        for precision, compiled, label in (("fp32", False, "float32"), ("bf16", False, "bf16 autocast"),
+                                           ("bf16", True, "bf16 autocast, compiled, channels-last")):
+            print(f"| {res} | {label} | {step_cost(res, precision, compiled, args.batch):.3f} |", flush=True)
+    for res in args.e2e:
+        torch.set_num_threads(1)
+        r = end_to_end(f"cross3d:{res}", args.librispeech, args.e2e_items)
+        print(f"end to end cross3d:{res}: {r['trajectories_per_s']:.2f} trajectories/s "
+              f"(epoch of {args.e2e_items} in {r['epoch_s']:.1f} s)")
+    print(f"load after {os.getloadavg()}")
+
+
+if __name__ == "__main__":
+    main()
