@@ -1,27 +1,39 @@
-# The README's two commands: `make demo` and `make test`. Both work on a fresh machine.
+# The README's two commands: `make demo` and `make test`. Both work on a fresh machine, and neither
+# modifies a tracked file: the demo writes under runs/demo/ (git-ignored). The committed results in
+# results/ change only through `make update-demo-results` (which also regenerates leaderboards/).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-# torch is pinned to the CPU wheel that our machines carry; pyproject.toml states the supported range.
+# torch pin: the default is the CPU wheel our machines carry. On another machine the package
+# index's torch==2.13.0 is the multi-GB CUDA build; for the CPU build there, use e.g.
+#   make TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu demo
+# or any pin pyproject.toml allows: make TORCH_PIN="torch==2.5.1" demo
 TORCH_PIN ?= torch==2.13.0
+TORCH_INDEX_URL ?=
+DEMO_OUT ?= runs/demo
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test update-demo-results bench clean
 
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet "$(TORCH_PIN)"
+	$(BIN)/pip install --quiet "$(TORCH_PIN)" $(if $(TORCH_INDEX_URL),--index-url "$(TORCH_INDEX_URL)")
 	$(BIN)/pip install --quiet -e ".[test]"
 	touch $(STAMP)
 
 demo: setup
-	$(BIN)/doabench run --tracker srp-max --task sim-demo
+	$(BIN)/doabench run --tracker srp-max --task sim-demo --out $(DEMO_OUT)
 
 test: setup
 	$(BIN)/python -m pytest
+
+# The explicit command that changes the committed demo results (and the leaderboards built from them).
+update-demo-results: setup
+	$(BIN)/doabench run --tracker srp-max --task sim-demo --out results
+	$(BIN)/doabench leaderboard --results results --out leaderboards
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -33,7 +33,7 @@ SUBCOMMAND_MODULES = (
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="doabench",
+        prog="doabench",  # also for `python -m doabench`
         description="Benchmark and dataset generator for sound source DOA estimation and tracking.",
     )
     parser.add_argument("--version", action="version", version=f"doabench {__version__}")

@@ -22,13 +22,17 @@ cell (fixed T60 and SNR) and the grid task itself, whose episodes are the cells'
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
 from doabench.errors import ConfigError
 from doabench.framing import FrameSpec
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser, published as tomli (a dependency there)
+    import tomli as tomllib
 
 REQUIRED = ("id", "version", "kind")
 

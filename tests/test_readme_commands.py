@@ -1,0 +1,126 @@
+"""The README's two commands leave the tracked files alone, the Makefile's torch pin is overridable,
+and the Python >= 3.10 claim holds (tomli fallback for tomllib, 3.10 syntax)."""
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from conftest import ROOT
+
+
+def _recipe(target: str) -> list[str]:
+    text = (ROOT / "Makefile").read_text()
+    block = re.search(rf"^{re.escape(target)}:.*\n((?:\t.*\n)+)", text, re.M)
+    assert block, f"no {target} target in the Makefile"
+    return [line.strip() for line in block.group(1).splitlines()]
+
+
+def _git(*args: str) -> str:
+    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+
+
+def _demo_out() -> Path:
+    (line,) = [l for l in _recipe("demo") if "doabench run" in l]
+    text = (ROOT / "Makefile").read_text()
+    default = re.search(r"^DEMO_OUT \?= (\S+)", text, re.M).group(1)
+    out = line.split("--out", 1)[1].split()[0].replace("$(DEMO_OUT)", default)
+    return Path(out)
+
+
+@pytest.mark.skipif(shutil.which("git") is None or not (ROOT / ".git").exists(), reason="needs a git checkout")
+def test_demo_writes_only_under_an_ignored_folder(tmp_path: Path) -> None:
+    out = _demo_out()
+    assert not out.is_absolute() and out.parts[0] != "results"
+    probe = out / "sim-demo__srp-max.json"
+    assert _git("check-ignore", str(probe)).strip() == str(probe)  # git-ignored
+    # Run the demo's own command (one episode) and check that no tracked file changed.
+    (line,) = [l for l in _recipe("demo") if "doabench run" in l]
+    argv = line.split("doabench", 1)[1].replace("$(DEMO_OUT)", str(out)).split() + ["--episodes", "1", "--quiet"]
+    before = _git("status", "--porcelain", "--untracked-files=no", "--", "results", "leaderboards")
+    existing = set((ROOT / out).glob("*")) if (ROOT / out).is_dir() else set()
+    proc = subprocess.run([sys.executable, "-m", "doabench", *argv], cwd=ROOT, capture_output=True, text=True,
+                          timeout=600)
+    try:
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert _git("status", "--porcelain", "--untracked-files=no", "--", "results", "leaderboards") == before
+        written = set((ROOT / out).glob("*")) - existing
+        assert written and all(p.suffix in (".json", ".csv") for p in written), written
+        for p in written:
+            assert _git("check-ignore", str(p.relative_to(ROOT))).strip()
+    finally:
+        for p in set((ROOT / out).glob("*")) - existing:
+            p.unlink()
+
+
+def test_committed_results_change_only_through_an_explicit_target() -> None:
+    assert not any("--out results" in l for l in _recipe("demo") + _recipe("test"))
+    recipe = _recipe("update-demo-results")
+    assert any("--out results" in l for l in recipe) and any("doabench leaderboard" in l for l in recipe)
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
+def test_torch_pin_and_index_are_overridable() -> None:
+    def dry(*overrides: str) -> str:
+        return subprocess.run(["make", "-n", "-B", "setup", *overrides], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout
+
+    default = dry()
+    assert 'pip install --quiet "torch==2.13.0"' in default and "--index-url" not in default
+    custom = dry("TORCH_PIN=torch==2.5.1", "TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu")
+    assert '"torch==2.5.1" --index-url "https://download.pytorch.org/whl/cpu"' in custom
+    readme = (ROOT / "README.md").read_text()
+    assert "make TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu demo" in readme
+    assert "TORCH_PIN=" in readme and "CUDA build" in readme
+
+
+def test_python_310_claim() -> None:
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["requires-python"] == ">=3.10"
+    assert 'tomli>=2.0; python_version < "3.11"' in project["dependencies"]
+    # Without tomllib (as on 3.10) the task specs load through tomli.
+    pytest.importorskip("tomli")
+    code = ("import sys; sys.modules['tomllib'] = None\n"
+            "import doabench, doabench.envs.spec as s\n"
+            "assert s.tomllib.__name__ == 'tomli', s.tomllib\n"
+            "assert doabench.get_task_spec('sim-demo').id == 'sim-demo'\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+
+
+def _python310() -> str | None:
+    for candidate in (*map(str, Path.home().glob(".pyenv/versions/3.10*/bin/python3.10")), shutil.which("python3.10")):
+        if candidate and subprocess.run([candidate, "-c", "import sys; assert sys.version_info[:2] == (3, 10)"],
+                                        capture_output=True).returncode == 0:
+            return candidate
+    return None
+
+
+@pytest.mark.skipif(_python310() is None, reason="no Python 3.10 interpreter on this machine")
+def test_sources_compile_under_python_310(tmp_path: Path) -> None:
+    code = ("import sys, pathlib\n"
+            "bad = []\n"
+            "for d in sys.argv[1:]:\n"
+            "    for p in sorted(pathlib.Path(d).rglob('*.py')):\n"
+            "        try: compile(p.read_text(), str(p), 'exec')\n"
+            "        except SyntaxError as e: bad.append(f'{p}: {e}')\n"
+            "print('\\n'.join(bad)); sys.exit(1 if bad else 0)\n")
+    proc = subprocess.run([_python310(), "-c", code, "doabench", "baselines", "tasks"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    # Standard-library names that only exist from 3.11 on.
+    newer = re.compile(r"\bimport tomllib\b(?!.*\n\s*except)|datetime\.UTC\b|from datetime import UTC|\bStrEnum\b|"
+                       r"typing import .*\bSelf\b|ExceptionGroup|hashlib\.file_digest|\.add_note\(")
+    offenders = []
+    for p in sorted([*(ROOT / "doabench").rglob("*.py"), *(ROOT / "baselines").rglob("*.py")]):
+        text = p.read_text()
+        for m in newer.finditer(text):
+            if m.group(0).startswith("import tomllib") and "except ModuleNotFoundError" in text[m.end():m.end() + 80]:
+                continue
+            offenders.append(f"{p.relative_to(ROOT)}: {m.group(0)}")
+    assert not offenders, offenders
