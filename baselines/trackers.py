@@ -11,7 +11,9 @@ Registered ids (``--tracker ID[:SPEC]`` with ``--tracker-opt key=value``):
 
 Common options: ``weights=FILE`` (default: the shipped file if any, else random initialisation;
 ``weights=random`` forces it), ``device=cpu|cuda[:N]``, ``seed=N`` (random initialisation).
-Untrained trackers warn once and say ``trained: false`` in :meth:`describe`.
+Untrained trackers say ``trained: false`` in :meth:`describe`. They can be built (``describe``,
+docs, training from scratch), but ``doabench run``/``track``/``doabench.run`` refuse them unless
+``weights=random`` was given explicitly (:attr:`NeuralTracker.allow_untrained`).
 
 Causal trackers run one frame per :meth:`step` through a :class:`StreamingRunner`; their
 :meth:`track` streams the episode in chunks and gives the same directions.
@@ -72,6 +74,8 @@ class NeuralTracker(doabench.Tracker):
             raise ConfigError(f"tracker {self.model_name!r} takes no map resolution (got {spec or resolution!r})")
         self.options = {"weights": weights, "device": device, "seed": seed, "resolution": resolution, "array": array}
         self.device = _device(str(device))
+        #: weights=random given on purpose: running the untrained model is then allowed (and marked)
+        self.allow_untrained = weights is not None and str(weights).lower() in _RANDOM
         self._weights_path, self._meta = self._find_weights(weights, resolution or spec)
         meta = self._meta or {}
         self._resolution = self._pick_resolution(resolution or spec, meta)
@@ -91,9 +95,10 @@ class NeuralTracker(doabench.Tracker):
             self._hash = sha256_file(self._weights_path)
         else:
             self._hash = None
-            warnings.warn(f"{self.model_name}: no trained weights{self._for_resolution()}; using a randomly "
-                          "initialised model (describe() reports trained: false). Pass weights=FILE.",
-                          stacklevel=3)
+            if not self.allow_untrained:
+                warnings.warn(f"{self.model_name}: no trained weights{self._for_resolution()}; using a randomly "
+                              "initialised model (describe() reports trained: false; runs refuse it). Pass "
+                              "weights=FILE, or weights=random to run it untrained on purpose.", stacklevel=3)
         self.model = self.model.to(self.device).eval()
         self._runner = StreamingRunner(self.model) if self.causal else None
         self._last = _INITIAL_DIRECTION.copy()

@@ -71,6 +71,21 @@ def _guarded(tracker: Tracker, what: str, fn: Callable, *args: Any) -> Any:
         raise TrackerError(f"tracker {tracker.name!r} raised in {what}: {one_line(exc)}") from None
 
 
+def check_trained(tracker: Tracker, keyword: bool = False) -> None:
+    """Refuse to run a learned tracker that has no trained weights, unless it was asked for on
+    purpose (``weights=random``: the tracker's ``allow_untrained``). Trackers without a ``trained``
+    attribute (the classical ones) always pass. ``keyword``: word the hint for Python callers."""
+    if getattr(tracker, "trained", True) is not False or getattr(tracker, "allow_untrained", False):
+        return
+    res = getattr(tracker, "resolution", None)
+    what = f" for {res[0]}x{res[1]} maps" if getattr(tracker, "uses_resolution", False) and res else ""
+    if keyword:
+        hint = "pass tracker_options={'weights': FILE}, or {'weights': 'random'} to run the untrained model on purpose"
+    else:
+        hint = "pass --tracker-opt weights=FILE, or --tracker-opt weights=random to run the untrained model on purpose"
+    raise ConfigError(f"tracker {tracker.name!r} has no trained weights{what}; {hint}")
+
+
 def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays: str = "nearest",
                  **env_options: Any) -> DoaEnv:
     """The environment configured with the features, resolution and frames a tracker needs."""
@@ -172,6 +187,7 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
         tracker = make_tracker(tracker, **(tracker_options or {}))
     else:
         tracker_text = tracker.name
+    check_trained(tracker, keyword=True)
     spec = get_task_spec(task)
     provenance = environment(device)  # taken before the work: the code that runs is the code recorded
     wall_start = time.perf_counter()
@@ -309,7 +325,8 @@ def _results(spec, tracker: Tracker, tracker_text: str, tracker_options, env: Do
         "task": {"id": spec.id, "version": spec.version, "kind": spec.kind, "gym_id": spec.gym_id,
                  "base_seed": spec.base_seed, "episodes_run": len(rows), "episodes_total": env.n_episodes,
                  "source": env.source.describe()},
-        "tracker": {"id": tracker_text, **tracker.describe(), "options": tracker_options or {}},
+        "tracker": {"id": tracker_text, **tracker.describe(), "options": tracker_options or {},
+                    **({"untrained": True} if getattr(tracker, "trained", True) is False else {})},
         "causal": bool(tracker.causal),
         "features": {"kinds": list(env.features), "resolution": "%dx%d" % env.resolution, "delays": delays,
                      "frame": env.frame_spec.to_dict()},

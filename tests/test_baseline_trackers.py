@@ -78,9 +78,14 @@ def test_cross3d_describe_at_64x128():
     assert (d["parameters"], d["receptive_field_frames"], d["receptive_field_s"]) == (21_354_788, 37, 7.168)
 
 
-def test_untrained_tracker_warns():
-    with pytest.warns(UserWarning, match="no trained weights for 4x8 maps"):
-        T.Cross3DTracker("4x8", weights="random")
+def test_untrained_tracker_warns_unless_random_was_asked_for():
+    with pytest.warns(UserWarning, match="no trained weights for 16x32 maps"):
+        t = T.Cross3DTracker("16x32")
+    assert not t.trained and not t.allow_untrained
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        t = T.Cross3DTracker("4x8", weights="random")
+    assert not t.trained and t.allow_untrained
 
 
 @pytest.mark.parametrize("text", ["cross3d:4x8", "cross3d:8x16", "gcc-cnn1d", "max-cnn1d"])

@@ -29,11 +29,12 @@ def main(args: argparse.Namespace) -> int:
     from doabench.envs.registry import get_task_spec
 
     from doabench.cli.common import check_output_folder
-    from doabench.runner import run_lock
+    from doabench.runner import check_trained, run_lock
 
     check_output_folder(args.out)  # before the work, not after it
     options = parse_options(args.tracker_opt)
     tracker = make_tracker(args.tracker, **options)
+    check_trained(tracker)  # before any file or folder is made
     spec = get_task_spec(args.task)
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]

@@ -117,6 +117,9 @@ def main(args: argparse.Namespace) -> int:
         check_output_file(args.plot, [args.recording, args.array, args.out], "--plot")
         check_plot_path(args.plot)
     tracker = make_tracker(args.tracker, **parse_options(args.tracker_opt))
+    from doabench.runner import check_trained
+
+    check_trained(tracker)  # an untrained learned model is refused unless weights=random
     array = get_array(args.array)
     spec = tracker.frame_spec
     audio, _ = load_recording(args.recording, array, spec.fs, args.resample, min_samples=spec.window)

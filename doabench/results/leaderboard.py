@@ -240,7 +240,8 @@ def provenance_line(label: str, run: RunFile) -> str:
     bits = [
         f"`{run.path}` (sha256 `{run.sha256[:16]}`)",
         f"tracker `{run.tracker_id}` version {tracker.get('version', '?')}, "
-        + (f"weights sha256 `{weights[:16]}`" if weights else "no weights"),
+        + (f"weights sha256 `{weights[:16]}`" if weights else
+           "UNTRAINED (random weights)" if _untrained(r) else "no weights"),
         f"task `{task['id']}` v{task.get('version', '?')}, base seed {task.get('base_seed')} "
         f"(per-episode seeds in the file), {task.get('episodes_run')}/{task.get('episodes_total')} episodes",
         commit_text,
@@ -295,13 +296,19 @@ def _episodes_text(task: dict[str, Any]) -> str:
     return f"{run}/{total}" + (" †" if run != total else "")
 
 
+def _untrained(results: dict[str, Any]) -> bool:
+    """A learned tracker run with random weights on purpose (``weights=random``)."""
+    tracker = results.get("tracker") or {}
+    return bool(tracker.get("untrained")) or tracker.get("trained") is False
+
+
 def _main_row(rank: int, run: RunFile, label: str) -> list[str]:
     r = run.results
     s = r["summary"]
     pooled = s.get("pooled") or {}
     within = pooled.get("within_10")
     return [
-        str(rank), f"`{run.tracker_id}`", "yes" if r.get("causal") else "no (offline)",
+        str(rank), f"`{run.tracker_id}`" + (" **(untrained)**" if _untrained(r) else ""), "yes" if r.get("causal") else "no (offline)",
         f"{int(r['tracker'].get('parameters') or 0):,}", _input_text(r), _episodes_text(r["task"]),
         _with_ci(s.get("rmsae_all"), s.get("rmsae_all_ci95")),
         _with_ci(s.get("rmsae_nonsilent"), s.get("rmsae_nonsilent_ci95")),
@@ -401,6 +408,9 @@ def task_markdown(board: TaskBoard, command: str) -> str:
                   "MAE, median, ≤10° and azimuth MAE are over non-silent frames. Definitions: docs/concepts.md.", ""]
         rows = [_main_row(i, run, labels[run.path]) for i, run in enumerate(board.runs, start=1)]
         lines += _table(MAIN_COLUMNS, rows)
+        if any(_untrained(r.results) for r in board.runs):
+            lines += ["", "**(untrained)**: a learned tracker run with randomly initialised weights "
+                          "(`--tracker-opt weights=random`); a reference point, not a trained model."]
         if any(r.results["task"].get("episodes_run") != r.results["task"].get("episodes_total") for r in board.runs):
             lines += ["", "† Ran only the first N episodes of the task (`--episodes N`, for time); "
                           "not directly comparable with full runs."]
@@ -472,7 +482,7 @@ def task_csv(board: TaskBoard) -> str:
             "results_file": run.path, "results_sha256": run.sha256,
             "git_commit": (env.get("git") or {}).get("commit") or "",
             "git_dirty": str((env.get("git") or {}).get("dirty")).lower(),
-            "weights_hash": tr.get("weights_hash") or "", "base_seed": task.get("base_seed"),
+            "weights_hash": tr.get("weights_hash") or ("untrained" if _untrained(r) else ""), "base_seed": task.get("base_seed"),
             "cpu": env.get("cpu"), "cpu_count": env.get("cpu_count"), "device": env.get("device"),
             "torch": env.get("torch"), "doabench": env.get("doabench"), "date": env.get("date"),
             "command": reproduce_command(r), "reference": "",

@@ -1,0 +1,83 @@
+"""A learned tracker without trained weights refuses to run (issues 12, 15) unless weights=random is
+given on purpose; such runs are marked untrained in the results and on the leaderboards. Building
+the model (describe, docs, training from scratch) still works."""
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import pytest
+
+import doabench
+from doabench.cli.main import main
+from doabench.errors import ConfigError
+
+from conftest import QUICK_SCENE
+
+UNTRAINED = "cross3d:16x32"  # no shipped weights for 16x32 maps
+
+
+def _one_line_error(capsys, command: str) -> str:
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"doabench {command}: error:") and "\n" not in err, err
+    return err
+
+
+def test_run_refuses_an_untrained_model_and_writes_nothing(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "results"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["run", "--tracker", UNTRAINED, "--task", "sim-demo", "--episodes", "1", "--quiet",
+                     "--out", str(out)]) == 2
+    err = _one_line_error(capsys, "run")
+    assert "no trained weights for 16x32 maps" in err and "--tracker-opt weights=random" in err
+    assert not out.exists()  # no results file, no journal, no folder
+
+
+def test_track_refuses_an_untrained_model(tmp_path: Path, capsys) -> None:
+    import numpy as np
+    import soundfile as sf
+
+    wav = tmp_path / "rec.wav"
+    sf.write(wav, np.zeros((16000, 12), np.float32), 16000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["track", str(wav), "--array", "nao", "--tracker", UNTRAINED, "--out", str(tmp_path / "d.csv")]) == 2
+    assert "no trained weights" in _one_line_error(capsys, "track")
+    assert not (tmp_path / "d.csv").exists()
+
+
+def test_python_api_refuses_and_names_the_keyword() -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ConfigError, match=r"tracker_options=\{'weights'"):
+            doabench.run(tracker=UNTRAINED, task="sim-demo", episodes=1, progress=False)
+        tracker = doabench.make_tracker(UNTRAINED)  # building it is fine (describe, training from scratch)
+    assert tracker.describe()["trained"] is False
+
+
+def test_describe_still_shows_an_untrained_model(capsys) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["describe", "--tracker", UNTRAINED]) == 0
+    assert "16x32" in capsys.readouterr().out
+
+
+def test_explicit_random_runs_and_is_marked_untrained(tmp_path: Path) -> None:
+    from doabench.results.leaderboard import build_leaderboards
+    from doabench.results.writer import write_results
+
+    results = doabench.run(tracker="cross3d:4x8", task="sim-demo", episodes=1, progress=False,
+                           tracker_options={"weights": "random"}, scene_overrides=QUICK_SCENE)
+    assert results["tracker"]["trained"] is False and results["tracker"]["untrained"] is True
+    json_path, _ = write_results(results, tmp_path / "results")
+    assert json.loads(json_path.read_text())["tracker"]["untrained"] is True
+    files = build_leaderboards(tmp_path / "results")
+    page = files["sim-demo.md"]
+    assert "`cross3d:4x8` **(untrained)**" in page and "UNTRAINED (random weights)" in page
+    assert ",untrained," in files["sim-demo.csv"]
+    # A trained model's run is not marked.
+    trained = doabench.run(tracker="cross3d:4x8", task="sim-demo", episodes=1, progress=False,
+                           scene_overrides=QUICK_SCENE)
+    assert trained["tracker"]["trained"] is True and "untrained" not in trained["tracker"]
