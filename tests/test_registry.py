@@ -20,13 +20,13 @@ def test_builtin_tasks_and_grid_cells_are_registered_with_gymnasium():
     cells = [t for t in tasks if t.startswith("sim-t60-")]
     assert len(cells) == 18
     grid = tasks["sim-grid"]
-    assert grid.episodes == 18 * 5
+    assert grid.episodes == 18 * 20  # v1: 20 episodes per cell
     cell = tasks["sim-t60-0.9-snr-5"]
     assert cell.params["scene"]["t60"] == [0.9, 0.9] and cell.params["scene"]["snr"] == [5.0, 5.0]
 
 
 def test_gym_id_and_plain_id_resolve_to_the_same_spec():
-    assert doabench.get_task_spec("doabench/sim-demo-v0") is doabench.get_task_spec("sim-demo")
+    assert doabench.get_task_spec("doabench/sim-demo-v1") is doabench.get_task_spec("sim-demo")
 
 
 def test_unknown_task_lists_close_matches():

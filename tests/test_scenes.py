@@ -172,3 +172,28 @@ def test_scene_dicts_are_fresh_objects():
     d["trajectory_params"]["tries"] = -1
     assert sc.to_dict()["speech"]["start"] >= 0 and sc.to_dict()["trajectory_params"]["tries"] >= 1
     assert sc.to_dict()["speech"] is not sc.to_dict()["speech"]
+
+
+def test_pauses_silence_the_talker_and_are_reproducible():
+    from doabench.acoustics.render import render_scene
+    from doabench.acoustics.scenes import SceneDistribution, sample_scene
+    from doabench.acoustics.speech import EmbeddedSpeechSource
+    from doabench.framing import frame_vad
+
+    speech = EmbeddedSpeechSource()
+    dist = SceneDistribution(room_min=(3.0, 3.0, 2.5), room_max=(4.0, 4.0, 3.0), t60=(0.2, 0.2), duration_s=8.0,
+                             n_points=16, pause_p=1.0, pause_count=(1, 1), pause_s=(3.0, 3.0))
+    scene = sample_scene(dist, 5, speech)
+    assert sample_scene(dist, 5, speech) == scene and len(scene.speech_pauses) == 1
+    (start, stop), = scene.speech_pauses
+    assert stop - start == 3 * dist.fs
+    ep = render_scene(scene, speech)
+    assert not ep.sample_vad[start:stop].any()
+    # every frame that lies inside the pause is silent
+    frames = np.asarray(frame_vad(ep.sample_vad, 4096, 3072))
+    inside = [(t * 3072 >= start) and (t * 3072 + 4096 <= stop) for t in range(len(frames))]
+    assert any(inside) and not frames[np.array(inside)].any()
+    # without pauses the same seed gives a scene without any, and its description is unchanged
+    plain = sample_scene(dist.replace(pause_p=0.0), 5, speech)
+    assert plain.speech_pauses == () and "speech_pauses" not in plain.to_dict()
+    assert type(scene).from_dict(scene.to_dict()) == scene

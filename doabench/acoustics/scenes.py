@@ -27,7 +27,8 @@ from doabench.errors import ConfigError
 
 # Independent random streams of a scene seed, in SeedSequence spawn order. Append, never reorder:
 # the order is part of what makes a seed reproduce the same scene.
-STREAMS = ("room", "array", "trajectory", "speech", "noise", "simulator", "directional", "directional_signal")
+STREAMS = ("room", "array", "trajectory", "speech", "noise", "simulator", "directional", "directional_signal",
+           "pauses")
 NOISE_KINDS = ("pink", "brown", "lowpass")
 
 
@@ -47,7 +48,7 @@ Range = tuple[float, float]
 Vec3 = tuple[float, float, float]
 
 # Field groups for validation and dict conversion.
-_RANGES = ("t60", "snr", "abs_weights", "directional_noise_snr")
+_RANGES = ("t60", "snr", "abs_weights", "directional_noise_snr", "pause_s", "pause_count")
 _VEC3 = ("room_min", "room_max", "array_fraction_min", "array_fraction_max")
 
 
@@ -80,6 +81,12 @@ class SceneDistribution:
     directional_noise_p: float = 0.0
     directional_noise_snr: Range = (10.0, 30.0)
     directional_noise_kind: str = "pink"
+    # Beyond the paper: with probability pause_p a scene silences its talker for pause_count
+    # (inclusive integer range) intervals of pause_s seconds each, so a tracker must hold its
+    # track through long silences (LOCATA has pauses of several seconds).
+    pause_p: float = 0.0
+    pause_count: Range = (1.0, 2.0)
+    pause_s: Range = (2.0, 5.0)
 
     def __post_init__(self) -> None:
         for name in _RANGES + _VEC3:
@@ -110,7 +117,7 @@ class SceneDistribution:
                    f"scene parameter {name} must be a positive integer, got {v!r}")
             object.__setattr__(self, name, int(v))
         for name in ("duration_s", "p_static", "max_amplitude", "max_oscillations", "wall_margin",
-                     "min_array_distance", "directional_noise_p"):
+                     "min_array_distance", "directional_noise_p", "pause_p"):
             v = getattr(self, name)
             _check(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and math.isfinite(v),
                    f"scene parameter {name} must be a finite number, got {v!r}")
@@ -125,6 +132,10 @@ class SceneDistribution:
                f"wall_margin {self.wall_margin} m must be >= 0 and leave room in the smallest room {list(self.room_min)}")
         _check(self.directional_noise_kind in NOISE_KINDS,
                f"directional_noise_kind must be one of {', '.join(NOISE_KINDS)}, got {self.directional_noise_kind!r}")
+        _check(0 <= self.pause_p <= 1, f"pause_p must be a probability in [0, 1], got {self.pause_p}")
+        _check(self.pause_count[0] >= 0 and all(float(c).is_integer() for c in self.pause_count),
+               f"pause_count must be two non-negative integers, got {list(self.pause_count)}")
+        _check(self.pause_s[0] >= 0, f"pause_s must be >= 0 s, got {list(self.pause_s)}")
 
     @property
     def n_samples(self) -> int:
@@ -214,6 +225,8 @@ class Scene:
     speech: dict[str, Any] | None = None
     directional_noise: DirectionalNoise | None = None
     trajectory_params: dict[str, Any] = field(default_factory=dict)
+    #: ``[start, stop)`` sample intervals in which the talker is silent (beyond the paper)
+    speech_pauses: tuple[tuple[int, int], ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "array_position", _frozen_array(self.array_position).reshape(3))
@@ -237,6 +250,10 @@ class Scene:
         object.__setattr__(self, "speech", copy.deepcopy(self.speech))  # not shared with the caller
         object.__setattr__(self, "trajectory_params", copy.deepcopy(dict(self.trajectory_params)))
         object.__setattr__(self, "fs", int(self.fs))
+        pauses = tuple((int(a), int(b)) for a, b in self.speech_pauses)
+        _check(all(0 <= a <= b <= self.n_samples for a, b in pauses),
+               f"speech pauses must be sample intervals inside the scene, got {[list(p) for p in pauses]}")
+        object.__setattr__(self, "speech_pauses", pauses)
         check_inside(self.room, self.array_position[None], "array centre")
         check_inside(self.room, self.mic_room_positions, "microphone")
         check_inside(self.room, traj, "source")
@@ -286,6 +303,8 @@ class Scene:
             "speech": copy.deepcopy(self.speech),  # fresh objects: callers may mutate the dict
             "directional_noise": None if self.directional_noise is None else self.directional_noise.to_dict(),
             "trajectory_params": copy.deepcopy(self.trajectory_params),
+            # only when present, so scenes without pauses keep their description
+            **({"speech_pauses": [list(p) for p in self.speech_pauses]} if self.speech_pauses else {}),
         }
 
     @classmethod
@@ -304,6 +323,7 @@ class Scene:
                 fs=int(d.get("fs", 16000)), speech=d.get("speech"),
                 directional_noise=None if noise is None else DirectionalNoise.from_dict(noise),
                 trajectory_params=dict(d.get("trajectory_params", {})),
+                speech_pauses=tuple(tuple(p) for p in d.get("speech_pauses", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, ConfigError):
@@ -384,4 +404,18 @@ def sample_scene(
         mic_positions=np.array(array.positions), trajectory=draw.points, static=draw.static,
         seed=int(seed), duration_s=dist.duration_s, fs=dist.fs, speech=speech,
         directional_noise=noise, trajectory_params=draw.params(),
+        speech_pauses=sample_pauses(rngs["pauses"], dist),
     )
+
+
+def sample_pauses(rng: np.random.Generator, dist: SceneDistribution) -> tuple[tuple[int, int], ...]:
+    """The speech pauses of a scene (see ``SceneDistribution.pause_p``): sorted sample intervals,
+    each of a length uniform in ``pause_s``, placed uniformly in the scene (they may overlap)."""
+    if dist.pause_p == 0 or not rng.random() < dist.pause_p:
+        return ()
+    n = dist.n_samples
+    count = int(rng.integers(int(dist.pause_count[0]), int(dist.pause_count[1]) + 1))
+    # A pause longer than the scene (short test scenes) silences all of it.
+    lengths = np.minimum(np.round(rng.uniform(*dist.pause_s, count) * dist.fs).astype(np.int64), n)
+    starts = np.floor(rng.uniform(0.0, 1.0, count) * (n - lengths + 1)).astype(np.int64)
+    return tuple(sorted((int(a), int(a + b)) for a, b in zip(starts, lengths)))
