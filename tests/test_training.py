@@ -240,3 +240,55 @@ def test_training_from_a_dataset_file(tmp_path):
     history = Trainer(opts, tracker=MaxTracker(), feature_fn=max_like, val_cache=val, log=lambda m: None).run()
     assert [h["trajectories_seen"] for h in history] == [3, 6]
     assert all(np.isfinite(h["train_loss"]) for h in history)
+
+
+def test_a_truncated_cache_item_is_a_one_line_error(tmp_path, caches):
+    import shutil
+
+    folder = tmp_path / "cache"
+    shutil.copytree(caches[0], folder)
+    path = folder / "00000.npz" if (folder / "00000.npz").exists() else sorted(folder.glob("*.npz"))[0]
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(doabench.DoabenchError, match="damaged"):
+        TrajectoryCache(folder).load(int(path.stem))
+
+
+def test_a_checkpoint_missing_keys_or_with_code_is_refused(tmp_path, caches):
+    import pickle
+
+    from doabench.training import checkpoint as ckpt
+
+    make_trainer(tmp_path / "a", caches, max_epochs=1).run()
+    state = ckpt.load_checkpoint(tmp_path / "a" / ckpt.LATEST)
+    assert state["epoch"] == 1 and state["best_epoch"] == 1
+    del state["history"]
+    ckpt.save_checkpoint(tmp_path / "b.safetensors", state)
+    with pytest.raises(doabench.DoabenchError, match="missing history"):
+        ckpt.load_checkpoint(tmp_path / "b.safetensors")
+
+    class Boom:
+        def __reduce__(self):
+            return (exec, ("open(%r, 'w').write('ran')" % str(tmp_path / "ran.txt"),))
+
+    (tmp_path / "evil.safetensors").write_bytes(pickle.dumps({"format": 2, "x": Boom()}))
+    with pytest.raises(doabench.DoabenchError):
+        ckpt.load_checkpoint(tmp_path / "evil.safetensors")
+    assert not (tmp_path / "ran.txt").exists()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_train_on_cuda_end_to_end(tmp_path, librispeech_root):
+    """Builtin simulator, features, model and bf16 autocast on CUDA (no data workers)."""
+    from doabench.cli.main import main as cli
+
+    out = tmp_path / "run"
+    rc = cli(["train", "--tracker", "cross3d:4x8", "--tracker-opt", "weights=random", "--device", "cuda",
+              "--workers", "0", "--epochs", "1", "--epoch-size", "4", "--val-trajectories", "2", "--no-compile",
+              "--librispeech", str(librispeech_root), "--cache-root", str(tmp_path / "cache"), "--out", str(out),
+              "--quiet"])
+    assert rc == 0
+    from doabench.training.checkpoint import load_checkpoint
+
+    state = load_checkpoint(out / "checkpoint.safetensors")
+    assert state["device"].startswith("cuda") and state["precision"] == "bf16" and state["epoch"] == 1

@@ -24,10 +24,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from doabench.errors import ConfigError, NotFoundError
+from doabench.errors import ConfigError, InputError, NotFoundError
 from doabench.results.files import atomic_path, write_json
 
 SPLIT_KEYS = {"train": 1_000_001, "val": 1_000_002}
+ITEM_KEYS = ("audio", "signal_power", "vad", "trajectory", "array_position")  # what the items read
 CACHE_FORMAT = 1
 MAX_ATTEMPTS = 20
 
@@ -126,5 +127,17 @@ class TrajectoryCache:
         return sorted(int(p.stem) for p in self.folder.glob("[0-9]*.npz"))
 
     def load(self, index: int) -> dict[str, np.ndarray]:
-        with np.load(item_path(self.folder, index)) as z:
-            return {k: z[k] for k in z.files}
+        """Item ``index``; a truncated or foreign file is a one-line InputError naming it."""
+        path = item_path(self.folder, index)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                item = {k: z[k] for k in z.files}
+        except FileNotFoundError:
+            raise NotFoundError(f"training cache item {path} is missing") from None
+        except Exception as exc:  # zipfile.BadZipFile, EOFError, ValueError, ...
+            raise InputError(f"training cache item {path} is damaged ({type(exc).__name__}); delete it and "
+                             "rebuild with `doabench train ... --build-cache`") from None
+        missing = [k for k in ITEM_KEYS if k not in item]
+        if missing:
+            raise InputError(f"training cache item {path} lacks {', '.join(missing)}; delete it and rebuild")
+        return item

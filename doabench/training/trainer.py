@@ -226,7 +226,8 @@ class Trainer:
 
         if not hasattr(self, "_sim_parts"):
             self._sim_parts = (speech_for_split(self.spec, "train", self.options.librispeech, r.val_speaker_fraction),
-                               get_array(self.spec.array), get_simulator(self.options.simulator))
+                               get_array(self.spec.array), get_simulator(self.options.simulator,
+                                                                         device=self._data_device()))
         speech, array, sim = self._sim_parts
         dist = scene_distribution(self.spec, r).replace(snr=tuple(snr))
         items = SimulatedItems(dist, speech, array, sim, self.base_seed, epoch, r.trajectories_per_epoch,
@@ -244,10 +245,17 @@ class Trainer:
             feats = dict(self.feature_fn(batch["audio"], batch["sample_vad"]))
             return self.tracker.network_input(feats)
 
+    def _data_device(self) -> torch.device:
+        """Where simulation and features run: the training device when the training process does
+        the data work itself (no workers; e.g. everything on one GPU), else the workers' CPU."""
+        return self.device if self.workers == 0 else torch.device("cpu")
+
     def item_input(self, audio: torch.Tensor, sample_vad: torch.Tensor) -> torch.Tensor:
         """The network input of one item (``audio`` ``(M, L)``, ``sample_vad`` ``(L,)``), without its batch axis."""
+        dev = self._data_device()
         with torch.no_grad():
-            return self.tracker.network_input(dict(self.feature_fn(audio[None], sample_vad[None])))[0]
+            feats = self.feature_fn(audio[None].to(dev), sample_vad[None].to(dev))
+            return self.tracker.network_input(dict(feats))[0]
 
     def _autocast(self):
         if self.precision != "bf16":
