@@ -27,6 +27,7 @@ SUBCOMMAND_MODULES = (
     "dataset",
     "train",
     "leaderboard",
+    "sweep",
     "plot",
 )
 

@@ -19,7 +19,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated: srp:NxM (several resolutions allowed; stores srp_max too), gcc, "
                         "spectrogram, audio (default srp:16x32)")
     p.add_argument("--shard", help="K/N: only episodes i with i %% N == K-1 (for cluster array jobs)")
-    p.add_argument("--workers", type=int, default=1, help="simulation processes (default 1)")
+    p.add_argument("--workers", type=int,
+                   help="simulation processes (default 1); with --engine ray: Ray workers (default: 1 on a local "
+                        "instance, every CPU of the cluster with --ray-address)")
+    p.add_argument("--engine", choices=["local", "ray"], default="local",
+                   help="local (default): this machine's processes; ray: episodes as Ray tasks (needs "
+                        "pip install 'doabench[ray]'), see docs/scale-out.md")
+    p.add_argument("--ray-address", metavar="ADDR",
+                   help="Ray cluster to use with --engine ray (e.g. auto, ray://head:10001); default: start a "
+                        "local Ray instance with --workers CPUs")
     p.add_argument("--float16", action="store_true", help="store srp, gcc and spectrogram maps as float16")
     p.add_argument("--sample-vad", action="store_true", help="also store the per-sample VAD (always with audio)")
     p.add_argument("--compression", choices=["gzip", "lzf", "none"], default="gzip",
@@ -35,12 +43,20 @@ def main(args: argparse.Namespace) -> int:
     from doabench.datasets.generate import make_dataset
     from doabench.datasets.schema import parse_shard
 
+    from doabench.errors import ConfigError
+
     options = corpus_kwargs(args)
     backend = options.pop("backend")
+    if args.ray_address and args.engine != "ray":
+        raise ConfigError("--ray-address needs --engine ray")
+    workers = args.workers
+    if workers is None and not (args.engine == "ray" and args.ray_address):
+        workers = 1
     result = make_dataset(args.task, args.out, episodes=args.episodes, features=args.features,
-                          shard=parse_shard(args.shard), workers=args.workers, float16=args.float16,
+                          shard=parse_shard(args.shard), workers=workers, float16=args.float16,
                           sample_vad=args.sample_vad, compression=args.compression, delays=args.delays,
-                          device=args.device, backend=backend, progress=not args.quiet, **options)
+                          device=args.device, backend=backend, progress=not args.quiet, engine=args.engine,
+                          ray_address=args.ray_address, **options)
     size = result.path.stat().st_size
     if result.already_complete:
         print(f"{result.path} is already complete ({result.n_episodes} episodes); nothing to do")

@@ -223,19 +223,30 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
                  features: str | Sequence[str] = "srp:16x32", shard: tuple[int, int] | None = None,
                  workers: int = 1, float16: bool = False, sample_vad: bool = False, compression: str = "gzip",
                  delays: str = "nearest", device: str | None = None, backend: str = "builtin",
-                 progress: bool | Callable[[int], None] = True, **source_options: Any) -> GenerationResult:
+                 progress: bool | Callable[[int], None] = True, engine: str = "local",
+                 ray_address: str | None = None, **source_options: Any) -> GenerationResult:
     """Generate (or resume) dataset ``out`` with the first ``episodes`` episodes of ``task``.
 
     ``shard=(k, n)`` keeps the episodes ``i % n == k - 1``; ``workers`` processes simulate in
     parallel; ``source_options`` (``librispeech``, ...) go to the task's episode source.
     ``progress``: a tqdm bar (True), none (False) or a callback called with each finished index.
+    ``engine="ray"``: the episodes run as Ray tasks (:mod:`.ray_engine`) on the cluster at
+    ``ray_address`` or on a local Ray instance with ``workers`` CPUs; ``workers=None`` there means
+    every CPU of the cluster. The file is the same whatever the engine.
     """
     start = time.perf_counter()
+    from doabench.ray_support import check_engine, require_ray
+
+    check_engine(engine)
+    if engine == "ray":
+        require_ray()  # before any work: a one-line error when Ray is missing
+    elif workers is None:
+        workers = 1
     spec = get_task_spec(task)
     requests = parse_features(features)
     if compression not in COMPRESSIONS:
         raise ConfigError(f"unknown compression {compression!r}; choose from {', '.join(COMPRESSIONS)}")
-    if int(workers) < 1:
+    if workers is not None and int(workers) < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     out = Path(out)
     from doabench.envs.sources import make_episode_source
@@ -270,12 +281,15 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
         todo = [i for i in indices if i not in done]
         computer_kwargs = {"float16": float16, "delays": delays, "sample_vad": sample_vad, "device": device,
                            "backend": backend, **source_options}
-        _run(spec, requests, computer_kwargs, todo, folder, compression, workers, progress, source,
-             total=len(indices), initial=len(done), desc=f"{spec.id} -> {out.name}", tag=tag)
+        used = _run(spec, requests, computer_kwargs, todo, folder, compression, workers, progress, source,
+                    total=len(indices), initial=len(done), desc=f"{spec.id} -> {out.name}", tag=tag,
+                    engine=engine, ray_address=ray_address)
         options = {k: str(v) for k, v in source_options.items()}
-        info = {"generated_by": {"workers": int(workers), "source_options": options,
-                                 "seconds": round(time.perf_counter() - start, 3)},
-                **_source_description(source)}
+        generated_by = {"workers": int(used if workers is None else workers), "source_options": options,
+                        "seconds": round(time.perf_counter() - start, 3)}
+        if engine != "local":
+            generated_by["engine"] = engine
+        info = {"generated_by": generated_by, **_source_description(source)}
         assemble(out, folder, indices, config, spec, requests, info)
         shutil.rmtree(folder, ignore_errors=True)
     return GenerationResult(out, len(indices), len(todo), len(done), time.perf_counter() - start)
@@ -316,8 +330,9 @@ def _source_description(source) -> dict[str, Any]:
 
 
 def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[int], folder: Path,
-         compression: str, workers: int, progress, source, total: int, initial: int, desc: str,
-         tag: str = "") -> None:
+         compression: str, workers: int | None, progress, source, total: int, initial: int, desc: str,
+         tag: str = "", engine: str = "local", ray_address: str | None = None) -> int:
+    """Compute the parts of ``todo``; returns the number of workers used."""
     bar = None
     if progress is True:
         from tqdm.auto import tqdm
@@ -332,7 +347,12 @@ def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[i
 
     try:
         if not todo:
-            return
+            return int(workers or 1)
+        if engine == "ray":
+            from doabench.datasets.ray_engine import run_ray
+
+            return run_ray(spec, requests, computer_kwargs, todo, folder, compression, workers, done, tag,
+                           address=ray_address)
         if workers == 1:
             from doabench.datasets.compute import EpisodeComputer
 
@@ -340,7 +360,7 @@ def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[i
             for index in todo:
                 write_part(folder, computer.compute(index), compression, tag)
                 done(index)
-            return
+            return 1
         import multiprocessing
         from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 
@@ -358,6 +378,7 @@ def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[i
                 for fut in pending:
                     fut.cancel()
                 raise
+        return int(workers)
     finally:
         if bar is not None:
             bar.close()

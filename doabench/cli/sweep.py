@@ -1,0 +1,64 @@
+"""``doabench sweep --trackers A,B --tasks X,Y --out DIR``: every run, then the leaderboard."""
+from __future__ import annotations
+
+import argparse
+
+from doabench.cli.common import add_corpus_options, corpus_kwargs
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sweep", help="run every (tracker, task) pair into one results folder, then build its leaderboard",
+        description="Run each tracker of --trackers on each task of --tasks as `doabench run` does (same results "
+                    "files, same resume journal and lock), into one --out folder, then write the leaderboard of "
+                    "that folder. Run again after a crash: finished runs are skipped, interrupted ones resume. "
+                    "Locally the runs go one after another; --engine ray runs them as Ray tasks "
+                    "(docs/scale-out.md).")
+    p.add_argument("--trackers", required=True, help="comma-separated tracker ids, e.g. srp-max,srp-max:32x64")
+    p.add_argument("--tasks", required=True, help="comma-separated task ids, e.g. sim-demo,sim-t60-0.3-snr-30")
+    p.add_argument("--tracker-opt", action="append", default=[], metavar="KEY=VALUE",
+                   help="option passed to every tracker's constructor (repeatable)")
+    p.add_argument("--episodes", type=int, help="run only the first N episodes of each task")
+    p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
+    p.add_argument("--out", required=True, help="results folder of every run")
+    p.add_argument("--leaderboard", metavar="DIR", help="leaderboard folder (default: OUT/leaderboard)")
+    p.add_argument("--no-frames", action="store_true", help="do not store per-frame estimates in the JSON")
+    p.add_argument("--engine", choices=["local", "ray"], default="local",
+                   help="local (default): one run after another; ray: runs as Ray tasks (needs "
+                        "pip install 'doabench[ray]')")
+    p.add_argument("--ray-address", metavar="ADDR",
+                   help="Ray cluster to use with --engine ray; default: a local Ray instance with --workers CPUs")
+    p.add_argument("--workers", type=int, help="CPUs of the local Ray instance (default: 2 at most)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (local engine)")
+    add_corpus_options(p)
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from doabench.cli.common import check_output_folder
+    from doabench.errors import ConfigError
+    from doabench.sweep import sweep
+    from doabench.trackers.registry import parse_options
+
+    if args.ray_address and args.engine != "ray":
+        raise ConfigError("--ray-address needs --engine ray")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers must be at least 1, got {args.workers}")
+    check_output_folder(args.out)
+    env_options = corpus_kwargs(args)
+    if args.device:
+        env_options["device"] = args.device
+    result = sweep(args.trackers, args.tasks, args.out, episodes=args.episodes, delays=args.delays,
+                   tracker_options=parse_options(args.tracker_opt), keep_frames=not args.no_frames,
+                   engine=args.engine, ray_address=args.ray_address, workers=args.workers,
+                   leaderboard=args.leaderboard, log=lambda m: print(m, flush=True),
+                   progress=not args.quiet and args.engine == "local", **env_options)
+    n = len(result.runs)
+    done = sum(r.status == "done" for r in result.runs)
+    skipped = sum(r.status == "skipped" for r in result.runs)
+    print(f"sweep: {n} runs ({done} run now, {skipped} already done, {len(result.failed)} failed) in {result.out}")
+    if result.leaderboard is not None:
+        print(f"leaderboard: {len(result.leaderboard_files)} files in {result.leaderboard}")
+    for run in result.failed:
+        print(f"failed: {run.tracker} on {run.task}: {run.error}")
+    return 1 if result.failed else 0
