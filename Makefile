@@ -32,7 +32,7 @@ test: setup
 
 # The explicit command that changes the committed demo results (and the leaderboards built from them).
 update-demo-results: setup
-	$(BIN)/doabench run --tracker srp-max --task sim-demo --out results
+	$(BIN)/doabench run --tracker srp-max --task sim-demo --out results --overwrite
 	$(BIN)/doabench leaderboard --results results --out leaderboards
 
 clean:

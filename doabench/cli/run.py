@@ -16,6 +16,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, help="run only the first N episodes")
     p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
     p.add_argument("--out", default="results", help="folder for results files (default: results/)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a results file of the same name that holds a different configuration "
+                        "(other task version, weights or options); a rerun of the same configuration always replaces")
     p.add_argument("--no-frames", action="store_true", help="do not store per-frame estimates in the JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_corpus_options(p)
@@ -23,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from doabench.results.writer import format_summary, results_stem, write_results
+    from doabench.results.writer import check_overwrite, configuration, format_summary, results_stem, write_results
     from doabench.runner import run_task
     from doabench.trackers.registry import make_tracker, parse_options
     from doabench.envs.registry import get_task_spec
@@ -38,14 +41,18 @@ def main(args: argparse.Namespace) -> int:
     spec = get_task_spec(args.task)
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
-    partial = out / f".{results_stem(spec.id, args.tracker)}.partial.jsonl"
+    stem = results_stem(spec.id, args.tracker, options, args.delays, tracker.weights_hash())
+    # Refused before the work: a file of another configuration under this name (never overwritten silently).
+    check_overwrite(out / f"{stem}.json", configuration(spec.id, spec.version, args.tracker, options,
+                                                       tracker.weights_hash(), args.delays), args.overwrite)
+    partial = out / f".{stem}.partial.jsonl"
     try:
         with run_lock(partial):  # a second run with the same --out, task and tracker is refused
             results = run_task(tracker, spec.id, episodes=args.episodes, device=args.device, delays=args.delays,
                                tracker_options=options, partial_path=partial, progress=not args.quiet,
                                keep_frames=not args.no_frames, lock=False, **corpus_kwargs(args))
             results["tracker"]["id"] = args.tracker
-            json_path, csv_path = write_results(results, out)
+            json_path, csv_path = write_results(results, out, overwrite=args.overwrite)
             partial.unlink(missing_ok=True)
     except BaseException:
         for folder in created:  # folders this run made and left empty go again

@@ -44,7 +44,15 @@ class RunFile:
 
     @property
     def tracker_id(self) -> str:
-        return str(self.results["tracker"].get("id") or self.results["tracker"].get("name"))
+        """The tracker id, with its options when the run had any (two configurations of one tracker
+        are two rows that can be told apart): ``srp-kalman:32x64 (alpha=0.2)``."""
+        tracker = self.results["tracker"]
+        base = str(tracker.get("id") or tracker.get("name"))
+        options = tracker.get("options") or {}
+        if not options:
+            return base
+        shown = {k: (Path(str(v)).name if k == "weights" else v) for k, v in sorted(options.items())}
+        return base + " (" + ", ".join(f"{k}={v}" for k, v in shown.items()) + ")"
 
 
 @dataclass(frozen=True)

@@ -2,25 +2,99 @@
 and a CSV of per-episode rows, both written atomically."""
 from __future__ import annotations
 
+import hashlib
+import json
 import re
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import pandas as pd
 
+from doabench.errors import InputError
 from doabench.results.files import atomic_path, write_json
 
 
-def results_stem(task_id: str, tracker_id: str) -> str:
-    """File stem for a (task, tracker) run, safe on every filesystem: ``sim-demo__srp-max_32x64``."""
+def _name_options(options: Mapping[str, Any] | None, weights_hash: str | None) -> dict[str, Any]:
+    """The options as they enter a file name: a ``weights`` file stands for its content (SHA-256),
+    so a retrained file at the same path gets another name and a moved file keeps its name."""
+    out = {str(k): v for k, v in (options or {}).items()}
+    if "weights" in out and weights_hash:
+        out["weights"] = f"sha256:{weights_hash}"
+    return out
+
+
+def config_suffix(options: Mapping[str, Any] | None = None, delays: str = "nearest",
+                  weights_hash: str | None = None) -> str:
+    """``""`` for a tracker's default configuration (no options, nearest delays), else
+    ``"__" + 8 hex digits`` of the configuration, so different configurations never share a file."""
+    opts = _name_options(options, weights_hash)
+    if not opts and delays in (None, "nearest"):
+        return ""
+    text = json.dumps({"options": opts, "delays": delays or "nearest"}, sort_keys=True, default=str)
+    return "__" + hashlib.sha256(text.encode()).hexdigest()[:8]
+
+
+def results_stem(task_id: str, tracker_id: str, options: Mapping[str, Any] | None = None, delays: str = "nearest",
+                 weights_hash: str | None = None) -> str:
+    """File stem for a run, safe on every filesystem: ``sim-demo__srp-max_32x64`` for the default
+    configuration, ``sim-demo__srp-kalman__1a2b3c4d`` with tracker options or exact delays."""
     safe = lambda s: re.sub(r"[^A-Za-z0-9.+-]+", "_", s).strip("_")  # noqa: E731
-    return f"{safe(task_id)}__{safe(tracker_id)}"
+    return f"{safe(task_id)}__{safe(tracker_id)}" + config_suffix(options, delays, weights_hash)
 
 
-def write_results(results: dict[str, Any], out_dir: str | Path) -> tuple[Path, Path]:
-    """Write ``<stem>.json`` and ``<stem>.csv`` into ``out_dir``; returns both paths."""
+def configuration(task_id: str, task_version: Any, tracker_id: str, options: Mapping[str, Any] | None,
+                  weights_hash: str | None, delays: str | None) -> dict[str, Any]:
+    """What makes two runs the same configuration (the number of episodes does not: a longer run
+    of the same configuration replaces a shorter one)."""
+    return {"task": str(task_id), "task_version": None if task_version is None else int(task_version),
+            "tracker": str(tracker_id), "options": _name_options(options, weights_hash),
+            "weights": weights_hash or None, "delays": delays or "nearest"}
+
+
+def results_configuration(results: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`configuration` of a results dictionary (or a loaded results file)."""
+    task, tracker = results.get("task") or {}, results.get("tracker") or {}
+    return configuration(task.get("id"), task.get("version"), tracker.get("id") or tracker.get("name"),
+                         tracker.get("options"), tracker.get("weights_hash"),
+                         (results.get("features") or {}).get("delays"))
+
+
+def results_path(results: Mapping[str, Any], out_dir: str | Path) -> Path:
+    """Where :func:`write_results` puts the JSON of ``results``."""
+    c = results_configuration(results)
+    stem = results_stem(c["task"], c["tracker"], (results["tracker"].get("options") or {}), c["delays"], c["weights"])
+    return Path(out_dir) / f"{stem}.json"
+
+
+def _describe_difference(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
+    keys = [k for k in new if old.get(k) != new.get(k)]
+    return ", ".join(f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in keys) or "unknown difference"
+
+
+def check_overwrite(path: str | Path, config: Mapping[str, Any], overwrite: bool = False) -> None:
+    """Refuse to replace a results file that holds a different configuration (options, weights,
+    task version, delays) unless ``overwrite``; the same configuration is replaced (a rerun)."""
+    path = Path(path)
+    if overwrite or not path.exists():
+        return
+    try:
+        old = results_configuration(json.loads(path.read_text()))
+    except (OSError, ValueError, AttributeError, TypeError):
+        raise InputError(f"{path} exists and is not a readable results file; move it away or pass --overwrite "
+                         "(Python: overwrite=True)") from None
+    if dict(old) != dict(config):
+        raise InputError(f"{path} holds a different configuration ({_describe_difference(old, config)}); "
+                         "pass --overwrite (Python: overwrite=True) to replace it, or choose another --out")
+
+
+def write_results(results: dict[str, Any], out_dir: str | Path, overwrite: bool = False) -> tuple[Path, Path]:
+    """Write ``<stem>.json`` and ``<stem>.csv`` into ``out_dir`` (stem: :func:`results_stem` of the
+    run's configuration); returns both paths. A file of a different configuration under that name
+    is refused (:func:`check_overwrite`) unless ``overwrite``."""
     out_dir = Path(out_dir)
-    stem = results_stem(results["task"]["id"], results["tracker"]["id"])
+    path = results_path(results, out_dir)
+    check_overwrite(path, results_configuration(results), overwrite)
+    stem = path.stem
     json_path = write_json(out_dir / f"{stem}.json", results)
     csv_path = out_dir / f"{stem}.csv"
     with atomic_path(csv_path) as tmp:

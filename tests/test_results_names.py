@@ -1,0 +1,86 @@
+"""Results files never silently replace a different configuration (issue 15): tracker options
+and exact delays name the file by a configuration hash; a file of the same name with another
+configuration (weights, task version) is refused unless --overwrite."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from doabench.cli.main import main
+from doabench.errors import InputError
+from doabench.results.writer import config_suffix, results_stem, write_results
+
+from conftest import ROOT
+
+RUN = ["run", "--task", "sim-demo", "--episodes", "1", "--quiet", "--no-frames"]
+
+
+def _run(out: Path, *extra: str) -> int:
+    return main([*RUN, "--out", str(out), *extra])
+
+
+def test_default_configuration_keeps_the_plain_name_and_options_get_a_hash() -> None:
+    assert results_stem("sim-demo", "srp-max:32x64") == "sim-demo__srp-max_32x64"
+    a = results_stem("sim-demo", "srp-kalman", {"alpha": 0.2})
+    b = results_stem("sim-demo", "srp-kalman", {"alpha": 0.7})
+    assert a != b and a.startswith("sim-demo__srp-kalman__") and len(a) == len("sim-demo__srp-kalman__") + 8
+    assert results_stem("sim-demo", "srp-max", delays="exact") != results_stem("sim-demo", "srp-max")
+    # A weights file is named by its content: the same path with other content is another name.
+    w1 = config_suffix({"weights": "w.safetensors"}, weights_hash="aa" * 32)
+    w2 = config_suffix({"weights": "w.safetensors"}, weights_hash="bb" * 32)
+    assert w1 != w2 and config_suffix({"weights": "elsewhere/w.safetensors"}, weights_hash="aa" * 32) == w1
+
+
+def test_two_option_values_write_two_files(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "r"
+    assert _run(out, "--tracker", "srp-kalman:4x8", "--tracker-opt", "alpha=0.2") == 0
+    assert _run(out, "--tracker", "srp-kalman:4x8", "--tracker-opt", "alpha=0.7") == 0
+    files = sorted(p.name for p in out.glob("*.json"))
+    assert len(files) == 2, files
+    alphas = sorted(json.loads((out / f).read_text())["tracker"]["options"]["alpha"] for f in files)
+    assert alphas == [0.2, 0.7]
+    # Both show up as distinct rows on the leaderboard.
+    from doabench.results.leaderboard import build_leaderboards
+
+    page = build_leaderboards(out)["sim-demo.md"]
+    assert "`srp-kalman:4x8 (alpha=0.2)`" in page and "`srp-kalman:4x8 (alpha=0.7)`" in page
+
+
+def test_a_different_configuration_under_the_same_name_is_refused(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "r"
+    assert _run(out, "--tracker", "srp-max:4x8") == 0
+    path = out / "sim-demo__srp-max_4x8.json"
+    data = json.loads(path.read_text())
+    data["task"]["version"] = -1  # as if written for another task version
+    path.write_text(json.dumps(data))
+    capsys.readouterr()
+    assert _run(out, "--tracker", "srp-max:4x8") == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds a different configuration" in err and "task_version -1 -> " in err and "\n" not in err
+    assert json.loads(path.read_text())["task"]["version"] == -1  # untouched
+    assert not list(out.glob(".*"))  # no journal or lock left behind
+    assert _run(out, "--tracker", "srp-max:4x8", "--overwrite") == 0
+    assert json.loads(path.read_text())["task"]["version"] != -1
+    # The same configuration is simply rerun and replaced.
+    assert _run(out, "--tracker", "srp-max:4x8") == 0
+
+
+def test_python_writer_refuses_another_configuration(tmp_path: Path) -> None:
+    results = json.loads((ROOT / "results" / "sim-demo__srp-max.json").read_text())
+    json_path, _ = write_results(results, tmp_path)
+    assert json_path.name == "sim-demo__srp-max.json"
+    write_results(results, tmp_path)  # same configuration: fine
+    other = json.loads(json.dumps(results))
+    other["tracker"]["weights_hash"] = "c" * 64
+    with pytest.raises(InputError, match="different configuration"):
+        write_results(other, tmp_path)
+    write_results(other, tmp_path, overwrite=True)
+
+
+def test_committed_results_carry_the_names_their_configuration_gives() -> None:
+    from doabench.results.writer import results_path
+
+    for path in sorted((ROOT / "results").glob("*.json")):
+        assert results_path(json.loads(path.read_text()), path.parent).name == path.name
