@@ -43,13 +43,34 @@ _NAO_POSITIONS = (
 )
 
 
+PLANAR_TOLERANCE = 1e-3  # z spread allowed for "planar", as a fraction of the aperture
+
+
+def is_planar(positions: np.ndarray) -> bool:
+    """Whether every microphone lies in one plane z = const (within 0.1 % of the aperture)."""
+    pos = np.asarray(positions, dtype=np.float64)
+    aperture = float(np.linalg.norm(pos[:, None] - pos[None], axis=-1).max())
+    return bool(np.ptp(pos[:, 2]) <= PLANAR_TOLERANCE * aperture)
+
+
+def fold_to_upper(directions: np.ndarray) -> np.ndarray:
+    """Mirror directions below the array plane onto it (z -> |z|): what a planar array scores against."""
+    d = np.array(directions, dtype=np.float64, copy=True)
+    d[..., 2] = np.abs(d[..., 2])
+    return d
+
+
 @dataclass(frozen=True)
 class MicArray:
     """A microphone array: positions ``(n_mics, 3)`` in metres in the array frame."""
 
     name: str
     positions: np.ndarray
-    planar: bool = False
+    #: all microphones in one plane z = const of the array frame: SRP grids cover elevations
+    #: 0-90 degrees and scoring folds truth and estimates onto the upper half-space (a planar
+    #: array cannot tell a direction from its mirror image). None (the default): detected from
+    #: the positions (:func:`is_planar`).
+    planar: bool | None = None
     source: str = field(default="builtin", compare=False)
 
     def __post_init__(self) -> None:
@@ -67,6 +88,7 @@ class MicArray:
             raise ConfigError(f"{where}: microphones {i + 1} and {j + 1} are at the same place")
         pos.setflags(write=False)
         object.__setattr__(self, "positions", pos)
+        object.__setattr__(self, "planar", is_planar(pos) if self.planar is None else bool(self.planar))
 
     @property
     def n_mics(self) -> int:
@@ -154,10 +176,8 @@ def _array_from_mapping(data, path: Path) -> MicArray:
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name.strip():
         raise ConfigError(f"array file {path}: field 'name' must be a non-empty string, got {name!r}")
-    planar = data.get("planar")
-    if planar is None:
-        planar = bool(np.ptp(pos[:, 2]) < 1e-9)
-    elif not isinstance(planar, bool):
+    planar = data.get("planar")  # None: detected from the positions (MicArray.planar)
+    if planar is not None and not isinstance(planar, bool):
         raise ConfigError(f"array file {path}: field 'planar' must be true or false, got {planar!r}")
     return MicArray(name, pos, planar, source=str(path))
 

@@ -26,6 +26,11 @@ class Episode:
     * ``metadata``: JSON-serialisable description (scene parameters, recording ids, seed, ...)
     * ``array``: the array geometry this recording was made with, when it differs from the task's
       (e.g. LOCATA's per-recording measured microphone positions); None means the task's array
+    * ``sample_valid``: ``(n_samples,)`` bool, False where the truth is not valid (LOCATA's
+      ``valid_flag = 0``): such frames are left out of scoring. None: all valid.
+    * ``input_vad``: the voice activity the features are masked with (silent frames' features are
+      zero), when it differs from ``sample_vad`` (LOCATA: voice activity regardless of validity,
+      so invalid frames keep their maps in the network's input). None: ``sample_vad``.
     """
 
     audio: np.ndarray
@@ -34,6 +39,13 @@ class Episode:
     sample_directions: np.ndarray
     metadata: dict[str, Any] = field(default_factory=dict)
     array: MicArray | None = None
+    sample_valid: np.ndarray | None = None
+    input_vad: np.ndarray | None = None
+
+    @property
+    def feature_vad(self) -> np.ndarray:
+        """The per-sample VAD the features are masked with."""
+        return self.sample_vad if self.input_vad is None else self.input_vad
 
     @property
     def n_samples(self) -> int:
@@ -46,14 +58,18 @@ class Episode:
     def frame_truth(self, frame_spec: FrameSpec) -> dict[str, np.ndarray]:
         """Per-frame truth: ``directions (T, 3)``, ``elevation``/``azimuth`` ``(T,)`` in radians,
         ``vad (T,)`` bool (active when more than 2/3 of the window's samples are active) and
-        ``times (T,)`` in seconds (window centres)."""
+        ``times (T,)`` in seconds (window centres), and ``valid (T,)`` bool when the episode has
+        ``sample_valid``."""
         dirs = frame_mean_directions(self.sample_directions, frame_spec.window, frame_spec.hop)
         el, az = unit_to_angles(dirs)
         vad = frame_vad(self.sample_vad, frame_spec.window, frame_spec.hop)
-        return {
+        out = {
             "directions": dirs,
             "elevation": el,
             "azimuth": az,
             "vad": np.asarray(vad, dtype=bool),
             "times": frame_spec.times(len(dirs)),
         }
+        if self.sample_valid is not None:  # a frame is scored when more than 2/3 of its samples are valid
+            out["valid"] = np.asarray(frame_vad(self.sample_valid, frame_spec.window, frame_spec.hop), dtype=bool)
+        return out

@@ -118,8 +118,24 @@ def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
                                                        env.offline_episode()), n)
     tracker_s = time.perf_counter() - start
     truth = env.episode_truth()
+    array = episode.array or env.array
+    valid = np.asarray(truth.get("valid", np.ones(n, bool)), dtype=bool)
     return {"estimates": estimates, "truth": truth["directions"], "vad": truth["vad"], "times": truth["times"],
+            "valid": valid, "planar": bool(array.planar),
             "tracker_s": tracker_s, "audio_s": episode.n_samples / episode.fs, "metadata": episode.metadata}
+
+
+def scored_frames(ep: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(estimates, truth, vad)`` of the frames that are scored: frames whose truth is invalid
+    (LOCATA ``valid_flag = 0``) are left out; for a planar array both estimate and truth are
+    mirror-folded onto the upper half-space (the array cannot tell a direction from its mirror)."""
+    keep = np.asarray(ep.get("valid", np.ones(len(ep["vad"]), bool)), dtype=bool)
+    est, truth, vad = ep["estimates"][keep], ep["truth"][keep], np.asarray(ep["vad"], bool)[keep]
+    if ep.get("planar"):
+        from doabench.arrays import fold_to_upper
+
+        est, truth = fold_to_upper(est), fold_to_upper(truth)
+    return est, truth, vad
 
 
 def lock_path(partial_path: str | Path) -> Path:
@@ -163,7 +179,10 @@ def _episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
     row = {"episode": index, "task": meta.get("task"), "seed": meta.get("seed"),
            "t60": room.get("t60", meta.get("t60")), "snr": scene.get("snr_db", meta.get("snr")),
            "recording": meta.get("recording"), "audio_s": ep["audio_s"], "tracker_s": ep["tracker_s"]}
-    row.update(episode_metrics(ep["estimates"], ep["truth"], ep["vad"]))
+    est, truth, vad = scored_frames(ep)
+    row["frames_scored"] = int(len(vad))
+    row["frames_invalid"] = int(len(ep["vad"]) - len(vad))
+    row.update(episode_metrics(est, truth, vad))
     return row
 
 
@@ -229,11 +248,14 @@ def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep
         if index in done:
             continue
         ep = run_episode(env, tracker, index)
-        record = {"row": _episode_row(index, ep), "errors": frame_errors_deg(ep["estimates"], ep["truth"]),
-                  "az_errors": azimuth_errors_deg(ep["estimates"], ep["truth"]), "vad": ep["vad"]}
+        est, truth, vad = scored_frames(ep)
+        record = {"row": _episode_row(index, ep), "errors": frame_errors_deg(est, truth),
+                  "az_errors": azimuth_errors_deg(est, truth), "vad": vad, "planar": ep["planar"]}
         if keep_frames:
             record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"],
                                 "vad": ep["vad"]}
+            if not ep["valid"].all():
+                record["frames"]["valid"] = ep["valid"]
         now = time.perf_counter()
         record["wall_s"] = now - last  # this episode's share of the wall time, summed over resumes
         last = now
@@ -317,6 +339,21 @@ def _results(spec, tracker: Tracker, tracker_text: str, tracker_options, env: Do
         "pooled": agg["pooled"],
         "episode_mean": agg["episode_mean"],
     }
+    recording_rows = [r for r in rows if r.get("recording") is not None]
+    if recording_rows:
+        # LOCATA (the paper's Table II): the mean of the per-recording RMSAEs is the headline.
+        summary["recording_mean"] = {k: float(np.mean([r[k] for r in recording_rows]))
+                                     for k in ("rmsae_all", "rmsae_nonsilent")}
+        summary["headline"] = {"metric": "rmsae_all", "aggregate": "recording_mean",
+                               "value": summary["recording_mean"]["rmsae_all"]}
+    else:
+        summary["headline"] = {"metric": "rmsae_all", "aggregate": "pooled", "value": summary["rmsae_all"]}
+    planar = any(r.get("planar") for r in records)
+    source = env.source.describe()
+    scoring = {"planar_fold": bool(planar), "invalid_frames_excluded": int(sum(r.get("frames_invalid", 0) for r in rows)),
+               "headline": summary["headline"]["aggregate"]}
+    if "vad" in source:
+        scoring["vad"] = source["vad"]
     cells = grid_cells(spec, rows)
     audio_s = float(sum(r["audio_s"] for r in rows))
     tracker_s = float(sum(r["tracker_s"] for r in rows))
@@ -324,7 +361,7 @@ def _results(spec, tracker: Tracker, tracker_text: str, tracker_options, env: Do
         "schema": RESULTS_SCHEMA,
         "task": {"id": spec.id, "version": spec.version, "kind": spec.kind, "gym_id": spec.gym_id,
                  "base_seed": spec.base_seed, "episodes_run": len(rows), "episodes_total": env.n_episodes,
-                 "source": env.source.describe()},
+                 "source": source},
         "tracker": {"id": tracker_text, **tracker.describe(), "options": tracker_options or {},
                     **({"untrained": True} if getattr(tracker, "trained", True) is False else {})},
         "causal": bool(tracker.causal),
@@ -332,6 +369,7 @@ def _results(spec, tracker: Tracker, tracker_text: str, tracker_options, env: Do
                      "frame": env.frame_spec.to_dict()},
         "environment": provenance,
         "summary": summary,
+        "scoring": scoring,
         "cells": cells,
         "wall_time_s": wall_s,
         "audio_s": audio_s,

@@ -107,7 +107,10 @@ def test_srp_max_tracks_the_fixture_through_the_runner(corpus):
     assert res["task"]["episodes_total"] == 1 and row["recording"] == 1
     assert row["median"] < 20.0, row  # measured: see docs/locata.md
     assert np.isfinite(res["summary"]["pooled"]["azimuth_mae"])
-    assert res["task"]["source"]["vad_sources"] == {"1": "corpus"}
+    # The paper's VAD (WebRTC on the array audio) is the default, and the results say so.
+    assert res["task"]["source"]["vad_sources"] == {"1": "webrtcvad-array"} and res["scoring"]["vad"] == "webrtc"
+    assert res["summary"]["headline"] == {"metric": "rmsae_all", "aggregate": "recording_mean",
+                                          "value": pytest.approx(row["rmsae_all"])}
 
 
 # -- corpus discovery and options ----------------------------------------------------------------
@@ -160,7 +163,7 @@ def test_without_vad_files_the_webrtc_vad_is_used(corpus, tmp_path):
     (folder / "VAD_benchmark2_loudspeaker1.txt").unlink()
     ep = _episode(tmp_path, 1)
     assert ep.metadata["vad_source"] == "webrtcvad" and ep.metadata["vad_mode"] in (1, 2, 3)
-    source = LocataEpisodes(get_task_spec("locata-1"), locata_root=str(tmp_path))
+    source = LocataEpisodes(get_task_spec("locata-1"), locata_root=str(tmp_path), vad="auto")
     assert source.describe()["vad_sources"] == {"1": "webrtcvad"}
     fx = corpus[1][1]
     t = np.arange(ep.n_samples) / FS
@@ -259,3 +262,93 @@ def test_microphone_geometry_is_the_time_average_with_its_spread():
     np.testing.assert_allclose(mean[1:], local[1:], atol=1e-12)
     np.testing.assert_allclose(mean[0], local[0] + [0.001, 0.0, 0.0], atol=1e-12)
     assert spread == pytest.approx(0.002)
+
+
+# -- the paper's protocol (issue 15) -----------------------------------------------------------------
+def test_invalid_frames_keep_their_maps_but_are_not_scored(corpus):
+    """valid_flag = 0 frames: excluded from scoring, but their maps reach the tracker unzeroed."""
+    from doabench.envs.env import DoaEnv
+    from doabench.runner import run_task
+
+    root, recs = corpus
+    env = DoaEnv("locata-1", features=("srp",), resolution=(4, 8), locata_root=str(root), vad="corpus")
+    episode, feats, truth = env.load_episode(0)
+    invalid = ~truth["valid"]
+    assert invalid.any() and truth["valid"].any()
+    active_input = feats["vad"].astype(bool)
+    both = invalid & active_input  # voice-active per the VAD, truth invalid
+    assert both.any()
+    assert np.abs(feats["srp"][both]).reshape(both.sum(), -1).max(axis=1).min() > 0  # not zeroed
+    res = run_task("srp-max:4x8", "locata-1", locata_root=str(root), vad="corpus", progress=False)
+    row = res["episodes"][0]
+    assert row["frames_invalid"] == int(invalid.sum()) and row["n_frames"] == row["frames_scored"] == int((~invalid).sum())
+    assert res["scoring"]["invalid_frames_excluded"] == int(invalid.sum()) and res["scoring"]["vad"] == "corpus"
+    assert res["frames"][0]["valid"] == truth["valid"].tolist()
+
+
+def test_vad_option_on_the_command_line(corpus, tmp_path, capsys):
+    import json
+
+    from doabench.cli.main import main
+
+    root, _ = corpus
+    out = tmp_path / "r"
+    assert main(["run", "--tracker", "srp-max:4x8", "--task", "locata-3", "--locata-root", str(root), "--vad",
+                 "corpus", "--quiet", "--no-frames", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "mean of recordings" in printed and "VAD corpus" in printed
+    (path,) = out.glob("*.json")
+    res = json.loads(path.read_text())
+    assert res["task"]["source"]["vad"] == "corpus" and res["task"]["source"]["vad_sources"] == {"1": "corpus"}
+    assert main(["run", "--tracker", "srp-max:4x8", "--task", "sim-demo", "--vad", "corpus", "--out",
+                 str(tmp_path / "x")]) == 2
+    assert "--vad applies to LOCATA tasks" in capsys.readouterr().err
+
+
+def test_locata_headline_is_the_mean_of_recordings(tmp_path):
+    """Ranked like the paper's Table II: mean of per-recording RMSAEs, pooled as a second column."""
+    import json
+
+    from doabench.results.leaderboard import build_leaderboards
+    from test_leaderboard import _results
+
+    d = tmp_path / "results"
+    d.mkdir()
+    a = _results("srp-max", 10.0, "locata-3", 2, 2, True)  # pooled 10, recordings 30 and 2 -> mean 16
+    a["episodes"][0]["rmsae_all"], a["episodes"][1]["rmsae_all"] = 30.0, 2.0
+    b = _results("srp-kalman", 12.0, "locata-3", 2, 2, True)  # pooled 12, recordings 12 and 13 -> mean 12.5
+    a2 = _results("srp-max", 10.0, "locata-1", 2, 2, True)
+    for name, r in (("locata-3__srp-max", a), ("locata-3__srp-kalman", b), ("locata-1__srp-max", a2),
+                    ("locata-1__srp-kalman", _results("srp-kalman", 12.0, "locata-1", 2, 2, True))):
+        (d / f"{name}.json").write_text(json.dumps(r))
+    files = build_leaderboards(d)
+    page = files["locata-3.md"]
+    assert "RMSAE all, mean of recordings | RMSAE all pooled [95% CI]" in page
+    first = next(line for line in page.splitlines() if line.startswith("| 1 |"))
+    assert "`srp-kalman`" in first and "| 12.50 | 12.00 [" in first  # the pooled leader is second
+    assert "mean of the per-recording RMSAEs" in page
+    summary = files["summary.md"]
+    assert "12.50 (mean of recordings)" in summary and "mean over tasks" in summary
+
+
+def test_planar_arrays_are_detected_and_scored_against_folded_truth(tmp_path):
+    import json
+
+    from doabench.arrays import MicArray, load_array_file
+    from doabench.runner import scored_frames
+    from doabench.metrics import episode_metrics
+
+    ring = [[0.05 * np.cos(a), 0.05 * np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)]
+    assert MicArray("ring", np.array(ring)).planar  # no flag needed
+    f = tmp_path / "ring.json"
+    f.write_text(json.dumps({"positions": ring}))
+    assert load_array_file(f).planar
+    assert not MicArray("nao-like", get_array("nao").positions).planar
+    assert not MicArray("ring", np.array(ring), planar=False).planar  # an explicit flag wins
+    # A truth below the plane and its mirror image as the estimate: no error for a planar array.
+    truth = np.array([[0.6, 0.0, -0.8], [0.0, 1.0, 0.0]])
+    est = np.array([[0.6, 0.0, 0.8], [0.0, 1.0, 0.0]])
+    ep = {"estimates": est, "truth": truth, "vad": np.ones(2, bool), "valid": np.ones(2, bool), "planar": True}
+    assert episode_metrics(*scored_frames(ep))["rmsae_all"] == pytest.approx(0.0, abs=1e-6)
+    ep["planar"] = False
+    assert episode_metrics(*scored_frames(ep))["rmsae_all"] > 50

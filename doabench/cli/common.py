@@ -18,6 +18,9 @@ def add_corpus_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--librispeech", help="LibriSpeech root (default: $DOABENCH_LIBRISPEECH)")
     p.add_argument("--locata-root", help="LOCATA corpus root (default: $DOABENCH_LOCATA)")
     p.add_argument("--split", choices=["dev", "eval"], help="LOCATA split (default: the task's, dev)")
+    p.add_argument("--vad", choices=["webrtc", "corpus"], default=None,
+                   help="LOCATA voice activity: webrtc (WebRTC VAD of the array audio, the paper's; the tasks' "
+                        "default) or corpus (the corpus VAD files); recorded in the results")
     p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu)")
 
@@ -30,6 +33,8 @@ def corpus_kwargs(args: argparse.Namespace) -> dict:
         out["locata_root"] = args.locata_root
     if args.split:
         out["split"] = args.split
+    if getattr(args, "vad", None):
+        out["vad"] = args.vad
     return out
 
 

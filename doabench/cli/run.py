@@ -39,6 +39,10 @@ def main(args: argparse.Namespace) -> int:
     tracker = make_tracker(args.tracker, **options)
     check_trained(tracker)  # before any file or folder is made
     spec = get_task_spec(args.task)
+    if args.vad and spec.kind != "locata":
+        from doabench.errors import ConfigError
+
+        raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.id!r} is {spec.kind} (its VAD is the scene's)")
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
     stem = results_stem(spec.id, args.tracker, options, args.delays, tracker.weights_hash())

@@ -123,7 +123,7 @@ class DoaEnv(gymnasium.Env):
                                  f"array {array.name!r} has {array.n_mics} microphones")
             from doabench.features.observations import recording_features
 
-            feats = recording_features(self._extractor(array), episode.audio, episode.sample_vad, self.features,
+            feats = recording_features(self._extractor(array), episode.audio, episode.feature_vad, self.features,
                                        self.frame_spec, self.device)
             truth = episode.frame_truth(self.frame_spec)
         n = len(truth["directions"])

@@ -15,13 +15,21 @@ Timing rules (docs/locata.md explains them with the reasons):
 4. Poses are interpolated to every output sample (truth module); the direction is
    ``R^T (s - p)`` in the array frame.
 5. A sample is *valid* when its nearest required-time row has ``valid_flag = 1`` and both the
-   array and the source pose cover it (within one pose period). Invalid samples are marked
-   silent (``sample_vad = False``), so they count as silent frames for scoring.
-6. Voice activity: the corpus file ``VAD_<array>_<name>.txt`` (one value per array sample; output
-   sample ``n`` takes the value of input sample ``round(n * down / up)``) when present, else the
-   WebRTC VAD (doabench.acoustics.vad) of the source signal, put on the array clock by linear
-   interpolation at the array-audio time stamps and resampled like the array audio. Metadata
-   ``vad_source`` says which (``corpus`` or ``webrtcvad``).
+   array and the source pose cover it (within one pose period). Invalid samples are left out of
+   scoring (``Episode.sample_valid``; they are also not voice-active in ``sample_vad``), but the
+   features are masked with the voice activity alone (``Episode.input_vad``): an invalid frame's
+   map reaches the network as it is, not zeroed.
+6. Voice activity, ``vad=``:
+
+   * ``webrtc`` (the paper's, the tasks' default): the WebRTC VAD (doabench.acoustics.vad) of the
+     array audio (first microphone at ``fs``, peak-normalised); metadata ``vad_source`` =
+     ``webrtcvad-array``;
+   * ``corpus``: the corpus file ``VAD_<array>_<name>.txt`` (one value per array sample; output
+     sample ``n`` takes the value of input sample ``round(n * down / up)``); ``vad_source`` =
+     ``corpus``;
+   * ``auto``: the corpus file when present, else the WebRTC VAD of the clean source signal, put
+     on the array clock by linear interpolation at the array-audio time stamps and resampled like
+     the array audio (``vad_source`` = ``webrtcvad``).
 """
 from __future__ import annotations
 
@@ -41,7 +49,7 @@ from doabench.locata.layout import Recording, require
 from doabench.locata.tables import (Pose, TimeOrigin, read_pose, read_required_time, read_times, read_vad)
 from doabench.locata.truth import (array_frame_directions, coverage_mask, local_mic_positions, required_mask)
 
-VAD_MODES = ("auto", "corpus", "webrtc")
+VAD_MODES = ("webrtc", "corpus", "auto")
 MIC_SPREAD_WARN_M = 0.005  # a rigid array's microphones should not wander by more than this
 # The built-in geometry used when a position_array file has no microphone columns.
 _BUILTIN_GEOMETRY = {"benchmark2": "benchmark2"}
@@ -132,7 +140,7 @@ def _geometry(rec: Recording, pose: Pose, n_channels: int) -> tuple[MicArray, di
         if base is not None:
             array = base.with_positions(local, source=str(rec.array_position_file))
         else:
-            array = MicArray(rec.array, local, planar=False, source=str(rec.array_position_file))
+            array = MicArray(rec.array, local, source=str(rec.array_position_file))  # planar if it is
         return array, {"mic_geometry": "recording", "mic_geometry_spread_m": spread}
     if rec.array not in _BUILTIN_GEOMETRY:
         raise NotFoundError(f"{rec.array_position_file} has no mic<k>_x/y/z columns and doabench has no built-in "
@@ -210,7 +218,14 @@ def read_recording(rec: Recording, fs: int = 16000, vad: str = "auto", source: s
 
     # 6. voice activity
     vad_meta: dict[str, Any]
-    if vad != "webrtc" and rec.vad_file(name).is_file():
+    if vad == "webrtc":
+        from doabench.acoustics.vad import webrtc_vad
+
+        ref = np.asarray(y[:, 0], dtype=np.float64)
+        full, mode = webrtc_vad(np.clip(0.5 * ref / (np.abs(ref).max() + 1e-12), -1.0, 1.0), fs)
+        active = full[sl]
+        vad_meta = {"vad_source": "webrtcvad-array", "vad_mode": int(mode)}
+    elif rec.vad_file(name).is_file():
         active = _corpus_vad(rec, name, len(t_in), take)[sl]
         vad_meta = {"vad_source": "corpus", "vad_file": rec.vad_file(name).name}
     elif vad == "corpus":
@@ -251,4 +266,6 @@ def read_recording(rec: Recording, fs: int = 16000, vad: str = "auto", source: s
         sample_directions=directions,
         metadata=metadata,
         array=array,
+        sample_valid=np.asarray(valid, dtype=bool),
+        input_vad=np.asarray(active, dtype=bool),
     )

@@ -2,8 +2,8 @@
 
 Spec parameters (``[locata]`` section of the task's TOML): ``task`` (1..6), ``array``
 (``benchmark2``, ``dicit``, ``dummy``, ``eigenmike``), ``split`` (``dev`` default), ``vad``
-(``auto`` default: corpus VAD files when present, else WebRTC on the source signal; ``corpus``;
-``webrtc``). Run-time options: ``locata_root`` (else ``$DOABENCH_LOCATA``), ``split`` (overrides the
+(``webrtc`` default, the paper's: WebRTC VAD of the array audio; ``corpus``: the corpus VAD files;
+``auto``: corpus files when present, else WebRTC on the source signal). Run-time options: ``locata_root`` (else ``$DOABENCH_LOCATA``), ``split`` (overrides the
 spec's), ``vad``, ``source`` (a source name, for recordings with several).
 
 One episode per recording found, in recording order; the spec's ``episodes`` is only a
@@ -35,7 +35,7 @@ class LocataEpisodes:
         self.task = int(params["task"])
         self.array = str(params.get("array", "benchmark2"))
         self.split = str(split or params.get("split", "dev"))
-        self.vad = str(vad or params.get("vad", "auto"))
+        self.vad = str(vad or params.get("vad", "webrtc"))
         if self.vad not in VAD_MODES:
             raise ConfigError(f"LOCATA vad option {self.vad!r} is not one of {', '.join(VAD_MODES)}")
         self.source = source
@@ -55,12 +55,16 @@ class LocataEpisodes:
         return episode
 
     def vad_sources(self) -> dict[int, str]:
-        """Per recording number, the VAD that is (or will be) used: ``corpus`` or ``webrtcvad``."""
+        """Per recording number, the VAD that is (or will be) used: ``webrtcvad-array``, ``corpus``
+        or ``webrtcvad`` (of the source signal)."""
         out = {}
         for rec in self.recordings:
             names = rec.source_names()
             has_file = bool(names) and all(rec.vad_file(n).is_file() for n in names)
-            out[rec.number] = "corpus" if has_file and self.vad != "webrtc" else "webrtcvad"
+            if self.vad == "webrtc":
+                out[rec.number] = "webrtcvad-array"
+            else:
+                out[rec.number] = "corpus" if has_file else "webrtcvad"
         return out
 
     def describe(self) -> dict[str, Any]:
@@ -71,6 +75,7 @@ class LocataEpisodes:
             "locata_task": self.task,
             "array": self.array,
             "recordings": [r.number for r in self.recordings],
+            "vad": self.vad,
             "vad_rule": self.vad,
             "vad_sources": {str(k): v for k, v in self.vad_sources().items()},
             "fs": self.fs,

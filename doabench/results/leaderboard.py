@@ -193,8 +193,23 @@ def _csv_num(x: Any) -> str:
     return "" if math.isnan(x) else f"{x:.4f}"
 
 
+def recording_mean(results: dict[str, Any]) -> float | None:
+    """The mean of the per-recording RMSAEs over all frames (LOCATA's headline, the paper's Table II),
+    or None for a task without recordings."""
+    values = [float(row["rmsae_all"]) for row in results.get("episodes") or []
+              if row.get("recording") is not None and row.get("rmsae_all") is not None]
+    return sum(values) / len(values) if values else None
+
+
+def headline(results: dict[str, Any]) -> float | None:
+    """The number a run is ranked by: the mean of per-recording RMSAEs for recording tasks
+    (LOCATA), else the RMSAE pooled over every frame."""
+    mean = recording_mean(results)
+    return mean if mean is not None else results["summary"].get(RANK_METRIC)
+
+
 def _run_sort_key(run: RunFile) -> tuple:
-    value = run.results["summary"].get(RANK_METRIC)
+    value = headline(run.results)
     value = float("inf") if value is None or math.isnan(float(value)) else float(value)
     return (value, run.tracker_id, run.path)
 
@@ -310,7 +325,10 @@ def _untrained(results: dict[str, Any]) -> bool:
     return bool(tracker.get("untrained")) or tracker.get("trained") is False
 
 
-def _main_row(rank: int, run: RunFile, label: str) -> list[str]:
+RECORDING_COLUMNS = MAIN_COLUMNS[:6] + ("RMSAE all, mean of recordings", "RMSAE all pooled [95% CI]") + MAIN_COLUMNS[7:]
+
+
+def _main_row(rank: int, run: RunFile, label: str, by_recording: bool = False) -> list[str]:
     r = run.results
     s = r["summary"]
     pooled = s.get("pooled") or {}
@@ -318,6 +336,7 @@ def _main_row(rank: int, run: RunFile, label: str) -> list[str]:
     return [
         str(rank), f"`{run.tracker_id}`" + (" **(untrained)**" if _untrained(r) else ""), "yes" if r.get("causal") else "no (offline)",
         f"{int(r['tracker'].get('parameters') or 0):,}", _input_text(r), _episodes_text(r["task"]),
+        *([_num(recording_mean(r))] if by_recording else []),
         _with_ci(s.get("rmsae_all"), s.get("rmsae_all_ci95")),
         _with_ci(s.get("rmsae_nonsilent"), s.get("rmsae_nonsilent_ci95")),
         _num(pooled.get("mae")), _num(pooled.get("median")),
@@ -411,11 +430,19 @@ def task_markdown(board: TaskBoard, command: str) -> str:
         lines += [f"**Warning**: results of several task versions ({', '.join(versions)}) are mixed here; "
                   "numbers from different versions are not comparable.", ""]
     if board.runs:
-        lines += [f"Ranked by RMSAE over all frames (degrees, pooled over every frame of every episode; "
-                  "ties by tracker id). Brackets: 95% bootstrap interval over episodes (1000 resamples). "
-                  "MAE, median, ≤10° and azimuth MAE are over non-silent frames. Definitions: docs/concepts.md.", ""]
-        rows = [_main_row(i, run, labels[run.path]) for i, run in enumerate(board.runs, start=1)]
-        lines += _table(MAIN_COLUMNS, rows)
+        by_recording = bool(recordings) and all(recording_mean(r.results) is not None for r in board.runs)
+        if by_recording:
+            lines += ["Ranked by the mean of the per-recording RMSAEs over all frames (degrees; the paper's "
+                      "Table II; ties by tracker id); the RMSAE pooled over every frame of every recording is "
+                      "the second column, with its 95% bootstrap interval over recordings (1000 resamples). "
+                      "MAE, median, ≤10° and azimuth MAE are pooled over non-silent frames. Frames whose truth "
+                      "is invalid (valid_flag = 0) are not scored. Definitions: docs/concepts.md.", ""]
+        else:
+            lines += [f"Ranked by RMSAE over all frames (degrees, pooled over every frame of every episode; "
+                      "ties by tracker id). Brackets: 95% bootstrap interval over episodes (1000 resamples). "
+                      "MAE, median, ≤10° and azimuth MAE are over non-silent frames. Definitions: docs/concepts.md.", ""]
+        rows = [_main_row(i, run, labels[run.path], by_recording) for i, run in enumerate(board.runs, start=1)]
+        lines += _table(RECORDING_COLUMNS if by_recording else MAIN_COLUMNS, rows)
         if any(_untrained(r.results) for r in board.runs):
             lines += ["", "**(untrained)**: a learned tracker run with randomly initialised weights "
                           "(`--tracker-opt weights=random`); a reference point, not a trained model."]
@@ -530,6 +557,23 @@ def cells_csv(board: TaskBoard) -> str | None:
     return _csv_text(rows, CELL_COLUMNS) if rows else None
 
 
+def _locata_overall(boards: dict[str, TaskBoard]) -> list[str]:
+    """Per tracker with runs on several recording tasks: the mean over tasks of the per-task means
+    of per-recording RMSAEs (the paper's Table II "average" column)."""
+    per: dict[str, dict[str, float]] = {}
+    for task_id, board in boards.items():
+        for run in board.runs:
+            mean = recording_mean(run.results)
+            if mean is not None:
+                per.setdefault(run.tracker_id, {}).setdefault(task_id, mean)
+    rows = [(sum(v.values()) / len(v), t, v) for t, v in per.items() if len(v) > 1]
+    if not rows:
+        return []
+    lines = ["", "## doabench averages over recording tasks (mean of the per-task means of recordings)", ""]
+    return lines + _table(["tracker", "tasks", "RMSAE all, mean over tasks"],
+                          [[f"`{t}`", ", ".join(sorted(v)), _num(m)] for m, t, v in sorted(rows)])
+
+
 def summary_markdown(boards: dict[str, TaskBoard], runs: Sequence[RunFile], references: Sequence[ReferenceRow],
                      command: str, reference_files: Sequence[str]) -> str:
     """``summary.md``: one line per task (best run), published overall rows, and every input file."""
@@ -542,10 +586,12 @@ def summary_markdown(boards: dict[str, TaskBoard], runs: Sequence[RunFile], refe
         best = board.runs[0] if board.runs else None
         rows.append([f"[`{task_id}`]({safe_name(task_id)}.md)", str(len(board.runs)),
                      f"`{best.tracker_id}`" if best else "—",
-                     _with_ci(best.results["summary"].get("rmsae_all"), best.results["summary"].get("rmsae_all_ci95"))
-                     if best else "—",
+                     (_with_ci(best.results["summary"].get("rmsae_all"), best.results["summary"].get("rmsae_all_ci95"))
+                      if recording_mean(best.results) is None else
+                      f"{_num(recording_mean(best.results))} (mean of recordings)") if best else "—",
                      str(len({r.method for r in board.references})) if board.references else "0"])
     lines += _table(["task", "doabench runs", "best (RMSAE all)", "RMSAE all [95% CI]", "published methods"], rows)
+    lines += _locata_overall(boards)
     overall = [r for r in references if r.task_id == "all"]
     if overall:
         lines += ["", "## Published overall averages (not reproduced)", "",

@@ -119,6 +119,20 @@ def format_summary(results: dict[str, Any]) -> str:
             f"{100 * s['pooled'][f'within_{t}']:.0f}" for t in (5, 10, 20, 30)),
         f"{'azimuth MAE (LOCATA) [deg]':<34}{s['pooled']['azimuth_mae']:>10.2f}",
     ]
+    rec = s.get("recording_mean")
+    if rec:
+        lines.insert(2, f"{'RMSAE all, mean of recordings [deg]':<34}{rec['rmsae_all']:>10.2f}   (headline, "
+                        f"the paper's Table II; non-silent {rec['rmsae_nonsilent']:.2f})")
+    scoring = results.get("scoring") or {}
+    notes = []
+    if scoring.get("vad"):
+        notes.append(f"VAD {scoring['vad']}")
+    if scoring.get("invalid_frames_excluded"):
+        notes.append(f"{scoring['invalid_frames_excluded']} frames with invalid truth not scored")
+    if scoring.get("planar_fold"):
+        notes.append("planar array: scored against mirror-folded truth")
+    if notes:
+        lines.append("scoring: " + "; ".join(notes))
     if results.get("cells"):
         lines.append(f"{'cell':<28}{'RMSAE all':>10}{'non-silent':>12}")
         for cell, c in results["cells"].items():
