@@ -23,6 +23,32 @@ from doabench.results.provenance import sha256_file
 from doabench.trackers import Tracker, available_trackers, make_tracker, register_tracker
 
 
+def _one_torch_thread_after_fork() -> None:
+    """In a forked child (``gymnasium.make_vec(..., vectorization_mode="async")`` forks on Linux),
+    torch's intra-op thread pool inherited from a parent that already ran torch work is unusable
+    and the first parallel op hangs; one thread per child avoids the pool (what torch's own
+    DataLoader workers do). Processes started with ``spawn`` are unaffected."""
+    import sys
+
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        try:
+            torch.set_num_threads(1)
+        except Exception:  # never break a fork
+            pass
+
+
+def _install_fork_guard() -> None:
+    import os
+
+    if hasattr(os, "register_at_fork") and not getattr(_install_fork_guard, "done", False):
+        os.register_at_fork(after_in_child=_one_torch_thread_after_fork)
+        _install_fork_guard.done = True
+
+
+_install_fork_guard()
+
+
 def run(tracker, task, **kwargs):
     """Run a tracker (id or instance) on a task; see :func:`doabench.runner.run_task`."""
     from doabench.runner import run_task
