@@ -108,6 +108,12 @@ def main(args: argparse.Namespace) -> int:
                         precision=args.precision, workers=args.workers, device=args.device,
                         compile=args.preset == "paper" if args.compile is None else args.compile)
     if args.build_cache:
+        from doabench.training.distributed import is_distributed_launch
+
+        if is_distributed_launch():
+            from doabench.errors import ConfigError
+
+            raise ConfigError("--build-cache runs in one process: start it without torchrun")
         from doabench.envs.registry import get_task_spec
         from doabench.training.pipeline import ensure_cache
         from doabench.training.protocol import training_defaults
@@ -121,7 +127,12 @@ def main(args: argparse.Namespace) -> int:
         if recipe.data == "cache":
             ensure_cache(opts.cache_root, spec, recipe, "train", recipe.cache_size, args.librispeech, args.backend, log)
         return 0
-    history = Trainer(opts, log=lambda m: print(m, flush=True)).run()
+    from doabench.training.distributed import is_distributed_launch, run_distributed
+
+    if is_distributed_launch():  # torchrun --nproc-per-node N -m doabench train ... (docs/scale-out.md)
+        history = run_distributed(opts, log=lambda m: print(m, flush=True))  # [] on ranks > 0
+    else:
+        history = Trainer(opts, log=lambda m: print(m, flush=True)).run()
     if history:
         last = history[-1]
         print(f"trained {last['epoch']} epochs ({last['trajectories_seen']} trajectories, {last['compute_s']:.0f} s); "

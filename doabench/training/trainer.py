@@ -117,6 +117,15 @@ class Trainer:
     the caches of :mod:`.pipeline`.
     """
 
+    # -- data-parallel hooks (set by doabench.training.distributed; None in a one-process run) -----
+    dist: Any = None
+
+    @property
+    def is_writer(self) -> bool:
+        """Whether this process writes the run folder: always in one process, rank 0 in data-parallel runs."""
+        return self.dist is None or self.dist.rank == 0
+    # -- end of data-parallel hooks ---------------------------------------------------------------
+
     def __init__(self, options: TrainOptions, tracker: Any = None, feature_fn: FeatureFn | None = None,
                  train_cache: Path | None = None, val_cache: Path | None = None,
                  log: Callable[[str], None] = print) -> None:
@@ -325,7 +334,8 @@ class Trainer:
             start, history, best = int(s["epoch"]), list(s["history"]), float(s["best"])
             compute_s, seen = float(s["compute_s"]), int(s["trajectories_seen"])
             self.log(f"resuming {self.out} after epoch {start}")
-        write_json(self.out / "config.json", self.describe())
+        if self.is_writer:  # data-parallel hook
+            write_json(self.out / "config.json", self.describe())
         val = self.prepare_validation()
         ran = 0
         for epoch in range(start, self.recipe.epochs):
@@ -342,6 +352,8 @@ class Trainer:
             loader = DataLoader(items, batch_size=phase.batch_size, shuffle=False, collate_fn=collate,
                                 num_workers=self.workers, worker_init_fn=_one_thread_worker if self.workers else None,
                                 prefetch_factor=4 if self.workers else None, persistent_workers=False)
+            if self.dist is not None:  # data-parallel hook: this rank's share of each global batch
+                loader = self.dist.loader(self, items, phase.batch_size)
             losses = []
             bar = _progress(loader, f"epoch {epoch + 1}/{self.recipe.epochs}", self.options.progress)
             for batch in bar:
@@ -369,9 +381,10 @@ class Trainer:
                      "threads": torch.get_num_threads(), "precision": self.precision,
                      "device": str(self.device), "workers": self.workers, "compiled": bool(self.options.compile),
                      "best": best}
-            ckpt.save_checkpoint(self.out / ckpt.LATEST, state)
-            write_log(self.out / "log.csv", history)
-            plot_history(self.out / "loss.png", history, self.options.tracker)
+            if self.is_writer:  # data-parallel hook: rank 0 alone writes the run folder
+                ckpt.save_checkpoint(self.out / ckpt.LATEST, state)
+                write_log(self.out / "log.csv", history)
+                plot_history(self.out / "loss.png", history, self.options.tracker)
             self.log(f"epoch {epoch + 1}: train loss {row['train_loss']:.4f}, val loss {metrics['val_loss']:.4f}, "
                      f"val RMSAE {metrics['val_rmsae_all']:.2f} deg (non-silent {metrics['val_rmsae_nonsilent']:.2f}),"
                      f" {epoch_s:.0f} s")
