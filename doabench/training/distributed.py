@@ -154,11 +154,12 @@ def setup(trainer, rank: int, world: int, local_rank: int, backend: str) -> Data
     return state
 
 
-def run_distributed(options, log: Callable[[str], None] = print, timeout_s: float = 1800.0,
+def run_distributed(options, log: Callable[[str], None] = print, timeout_s: float = 7200.0,
                     **trainer_kwargs: Any) -> list[dict[str, Any]]:
     """Rank ``$RANK`` of a data-parallel run of ``options`` (a TrainOptions); rank 0 returns the
     history, the others an empty list. ``trainer_kwargs`` go to :class:`Trainer` (tests inject a
-    tracker and caches)."""
+    tracker and caches). ``timeout_s`` bounds every collective, including the wait for rank 0
+    to build a missing validation cache (build big ones first with ``--build-cache``)."""
     import torch.distributed as dist
 
     from doabench.training.trainer import Trainer
@@ -178,6 +179,8 @@ def run_distributed(options, log: Callable[[str], None] = print, timeout_s: floa
     try:
         trainer = Trainer(options, log=log, **trainer_kwargs)
         state = setup(trainer, rank, world, local_rank, backend)
+        if rank == 0:  # a missing validation cache is simulated once, by rank 0, while the others wait
+            trainer._val_cache()
         # Every rank has read the run folder (a resume checkpoint, or none) before rank 0 writes it.
         dist.barrier()
         if rank == 0:
