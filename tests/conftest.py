@@ -29,3 +29,26 @@ def _one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture(autouse=True)
+def _validate_written_results(monkeypatch):
+    """Every results file a test writes through doabench (``write_results``: ``doabench run``,
+    ``doabench.results.writer``) is validated against the shipped JSON Schema first."""
+    try:
+        import jsonschema  # noqa: F401
+    except ImportError:  # the test extra brings it; without it the schema tests skip
+        yield
+        return
+    import doabench.results.writer as writer
+    from doabench.results.schema import validate_results
+
+    original = writer.write_json
+
+    def checked(path, obj):
+        if isinstance(obj, dict) and obj.get("schema") == "doabench.results/1":
+            validate_results(obj)
+        return original(path, obj)
+
+    monkeypatch.setattr(writer, "write_json", checked)
+    yield

@@ -53,6 +53,17 @@ def test_demo_writes_only_under_an_ignored_folder(tmp_path: Path) -> None:
         assert written and all(p.suffix in (".json", ".csv") for p in written), written
         for p in written:
             assert _git("check-ignore", str(p.relative_to(ROOT))).strip()
+        try:
+            from doabench.results.schema import validate_results
+            import jsonschema  # noqa: F401
+        except ImportError:
+            pass
+        else:
+            import json
+
+            for p in written:
+                if p.suffix == ".json":
+                    validate_results(json.loads(p.read_text()))
     finally:
         for p in set((ROOT / out).glob("*")) - existing:
             p.unlink()
