@@ -58,7 +58,8 @@ def make_speech_source(speech: dict[str, Any], librispeech: str | None = None):
         root = librispeech or os.environ.get("DOABENCH_LIBRISPEECH")
         if not root:
             raise NotFoundError(
-                f"this task needs LibriSpeech {speech.get('subset', '')}: pass --librispeech PATH or set "
+                f"this task needs LibriSpeech {speech.get('subset', '')}: pass --librispeech PATH (Python: "
+                "librispeech=PATH) or set "
                 "DOABENCH_LIBRISPEECH (get it with `doabench data download librispeech --subset "
                 f"{speech.get('subset', 'test-clean')}`)")
         kwargs = {k: v for k, v in speech.items() if k not in ("corpus", "subset")}

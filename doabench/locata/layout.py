@@ -37,7 +37,7 @@ def locata_root(root: str | os.PathLike | None = None) -> Path:
     if not text:
         raise NotFoundError(
             "this task needs the LOCATA corpus (ODC-BY 1.0, DOI 10.5281/zenodo.3630471): pass "
-            f"--locata-root PATH or set {LOCATA_ENV} to the folder holding dev/ and eval/ (see docs/locata.md)")
+            f"--locata-root PATH (Python: locata_root=PATH) or set {LOCATA_ENV} to the folder holding dev/ and eval/ (see docs/locata.md)")
     path = Path(text).expanduser()
     if not path.is_dir():
         raise NotFoundError(f"LOCATA root {path} does not exist (expected a folder holding dev/ and eval/)")

@@ -82,12 +82,24 @@ def _import_class(path: str) -> type[Tracker]:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise NotFoundError(f"tracker module {module_name!r} cannot be imported: {one_line(exc)}") from None
+        hint = ""
+        if isinstance(exc, ModuleNotFoundError) and exc.name and module_name.split(".")[0] == exc.name.split(".")[0]:
+            hint = " (is its folder on PYTHONPATH, or the package installed?)"
+        raise NotFoundError(f"cannot import module {module_name}: {one_line(exc)}{hint}") from None
     except Exception as exc:  # the user's module failed while importing: name it, no traceback
         raise TrackerError(f"tracker module {module_name!r} failed to import: {one_line(exc)}") from None
     cls = getattr(module, attr, None)
+    if cls is None:
+        found = sorted(name for name, obj in vars(module).items()
+                       if isinstance(obj, type) and issubclass(obj, Tracker) and obj is not Tracker
+                       and getattr(obj, "__module__", None) == module.__name__)
+        close = difflib.get_close_matches(attr, found, n=1, cutoff=0.5)
+        hint = (f"; did you mean {close[0]}?" if close else "") + (
+            f" (Tracker subclasses there: {', '.join(found)})" if found else " (it defines no Tracker subclass)")
+        raise NotFoundError(f"module {module_name} has no class {attr!r}{hint}")
     if not (isinstance(cls, type) and issubclass(cls, Tracker)):
-        raise NotFoundError(f"{path!r} is not a doabench.Tracker subclass")
+        raise NotFoundError(f"{path!r} is not a doabench.Tracker subclass (it is {type(cls).__name__} "
+                            f"{getattr(cls, '__name__', cls)!r})")
     return cls
 
 
@@ -108,7 +120,9 @@ def resolve_tracker(text: str) -> tuple[type[Tracker], str | None, str]:
     """Parse a ``--tracker`` value into (class, spec, id)."""
     head, sep, rest = text.partition(":")
     trackers = available_trackers()
-    if sep and head not in trackers and ("." in head or _module_exists(head)):
+    attr_text = rest.partition(":")[0]
+    looks_like_class = attr_text.isidentifier() and attr_text[:1].isupper()
+    if sep and head not in trackers and ("." in head or looks_like_class or _module_exists(head)):
         attr, _, spec = rest.partition(":")
         cls = _import_class(f"{head}:{attr}")
         return cls, spec or None, cls.name or f"{head}:{attr}"
