@@ -7,6 +7,7 @@ Public API::
     doabench.register_task, doabench.get_task_spec, doabench.available_tasks  # tasks
     env = gymnasium.make("doabench/sim-demo-v1", features=("srp",), resolution=(16, 32))
     doabench.run(tracker="srp-max", task="sim-demo")                   # scored results dict
+    doabench.srp_maps(audio, "nao")    # SRP-PHAT maps + grid angles + argmax directions in one call
 """
 from __future__ import annotations
 
@@ -49,6 +50,14 @@ def _install_fork_guard() -> None:
 _install_fork_guard()
 
 
+def srp_maps(audio, array, **kwargs):
+    """SRP-PHAT maps of ``(mics, samples)`` or ``(batch, mics, samples)`` audio with the grid's
+    colatitudes and azimuths; see :func:`doabench.features.oneshot.srp_maps`."""
+    from doabench.features.oneshot import srp_maps as _srp_maps
+
+    return _srp_maps(audio, array, **kwargs)
+
+
 def run(tracker, task, **kwargs):
     """Run a tracker (id or instance) on a task; see :func:`doabench.runner.run_task`."""
     from doabench.runner import run_task
@@ -61,5 +70,5 @@ available_tasks()  # registers every task with Gymnasium at import time
 __all__ = [
     "DoabenchError", "Episode", "FrameSpec", "MicArray", "Tracker", "available_tasks", "available_trackers",
     "get_array", "get_task_spec", "load_array_file", "make_tracker", "register_task", "register_task_kind",
-    "parse_resolution", "register_tracker", "run", "sha256_file",
+    "parse_resolution", "register_tracker", "run", "sha256_file", "srp_maps",
 ]

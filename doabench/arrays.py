@@ -8,7 +8,8 @@ Users load their own from JSON or YAML::
      "positions": [[0.05, 0.0, 0.0], [-0.05, 0.0, 0.0], [0.0, 0.05, 0.0]]}
 
 ``positions`` is required (metres, array frame, one ``[x, y, z]`` per microphone); ``name``
-defaults to the file stem; ``planar`` defaults to "all z equal".
+defaults to the file stem; ``planar`` defaults to "all z equal" (:func:`is_planar`).
+The format is documented in docs/arrays.md.
 """
 from __future__ import annotations
 

@@ -65,3 +65,40 @@ def test_python_dash_m_doabench() -> None:
     proc = subprocess.run([sys.executable, "-m", "doabench", "--version"], cwd=ROOT, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0 and proc.stdout.startswith("doabench ")
+
+
+def test_one_call_srp_api_takes_one_or_many_recordings() -> None:
+    import numpy as np
+
+    from doabench.features.functional import plane_wave_delays
+
+    nao = doabench.get_array("nao")
+    rng = np.random.default_rng(0)
+    s = rng.standard_normal(16000 + 200)
+    truth = np.array([0.0, 1.0, 1.0]) / np.sqrt(2.0)
+    tau = plane_wave_delays(nao.positions, truth, 16000)  # (mics,) delays in samples
+    audio = np.stack([np.roll(s, int(round(t)))[100:16100] for t in tau])
+    one = doabench.srp_maps(audio, "nao", resolution=(16, 32))
+    assert one.maps.shape == (one.times.shape[0], 16, 32) and one.maps.max() <= 1.0 + 1e-6
+    assert one.colatitudes.shape == (16,) and one.azimuths.shape == (32,)
+    assert one.colatitudes[0] == 0 and np.isclose(one.colatitudes[-1], np.pi) and one.azimuths[0] == -np.pi
+    err = np.degrees(np.arccos(np.clip(one.directions @ truth, -1, 1)))
+    assert np.median(err) < 15, err
+    many = doabench.srp_maps(np.stack([audio, audio]), "nao", resolution=(16, 32))
+    assert many.maps.shape == (2, *one.maps.shape) and np.allclose(many.maps[1], one.maps, atol=1e-5)
+    with pytest.raises(doabench.DoabenchError, match="channels"):
+        doabench.srp_maps(audio[:5], "nao")
+
+
+def test_the_array_file_page_example_loads(tmp_path: Path) -> None:
+    import re
+
+    page = (ROOT / "docs" / "arrays.md").read_text()
+    yaml_text = re.search(r"```yaml\n(.*?)```", page, re.S).group(1)
+    json_text = re.search(r"```json\n(.*?)```", page, re.S).group(1)
+    (tmp_path / "ring.yaml").write_text(yaml_text)
+    (tmp_path / "a.json").write_text(json_text)
+    ring = doabench.load_array_file(tmp_path / "ring.yaml")
+    assert ring.name == "ring-6" and ring.n_mics == 6 and ring.planar
+    a = doabench.load_array_file(tmp_path / "a.json")
+    assert a.name == "my-array" and not a.planar
