@@ -135,3 +135,15 @@ def test_sources_compile_under_python_310(tmp_path: Path) -> None:
                 continue
             offenders.append(f"{p.relative_to(ROOT)}: {m.group(0)}")
     assert not offenders, offenders
+
+
+def test_readme_commands_that_need_librispeech_say_so() -> None:
+    import doabench
+
+    readme = (ROOT / "README.md").read_text()
+    for line in readme.splitlines():
+        if line.startswith("doabench ") and "--task " in line:
+            task = line.split("--task ", 1)[1].split()[0]
+            speech = doabench.get_task_spec(task).params.get("speech") or {}
+            if speech.get("corpus") == "librispeech":
+                assert "--librispeech" in line, line

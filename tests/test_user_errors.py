@@ -102,3 +102,11 @@ def test_the_array_file_page_example_loads(tmp_path: Path) -> None:
     assert ring.name == "ring-6" and ring.n_mics == 6 and ring.planar
     a = doabench.load_array_file(tmp_path / "a.json")
     assert a.name == "my-array" and not a.planar
+
+
+def test_simulate_on_the_official_root_picks_a_test_subset(librispeech_root, tmp_path: Path, capsys) -> None:
+    """The root holds several subsets (here test-other and train-clean-100): no --subset needed."""
+    assert main(["simulate", "--librispeech", str(librispeech_root), "--duration", "2", "--seed", "1",
+                 "--out", str(tmp_path / "scene")]) == 0
+    out = capsys.readouterr().out
+    assert "librispeech speech (subset test-other)" in out, out

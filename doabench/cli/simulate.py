@@ -44,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu)")
     p.add_argument("--librispeech", help="LibriSpeech path (default: $DOABENCH_LIBRISPEECH, else embedded speech)")
-    p.add_argument("--subset", help="LibriSpeech subset when the path holds several (e.g. test-clean)")
+    p.add_argument("--subset", help="LibriSpeech subset (default: the task's; without --task the only subset "
+                                    "under the path, else test-clean, else test-other)")
     p.add_argument("--array", default=None, help="array name (nao) or JSON/YAML array file (default nao)")
     p.add_argument("--out", required=True, help="output folder (must not exist unless --force)")
     p.add_argument("--force", action="store_true", help="replace an existing output folder")
@@ -78,6 +79,27 @@ def _task_setup(task_id: str, librispeech: str | None):
     return dist, source, spec.array
 
 
+DEFAULT_SUBSETS = ("test-clean", "test-other")
+
+
+def default_subset(root: str) -> str | None:
+    """The subset to use under a LibriSpeech ``root`` when none is given: the only one there, else
+    test-clean, else test-other (the official root holds several); None leaves the error to the reader."""
+    from doabench.acoustics.speech import resolve_librispeech
+    from doabench.errors import DoabenchError
+
+    try:
+        return resolve_librispeech(root, None)[1]
+    except DoabenchError:
+        pass
+    for name in DEFAULT_SUBSETS:
+        try:
+            return resolve_librispeech(root, name)[1]
+        except DoabenchError:
+            continue
+    return None
+
+
 def build_distribution(args: argparse.Namespace):
     """The scene distribution, speech source and array the arguments ask for."""
     from doabench.acoustics.scenes import SceneDistribution
@@ -88,7 +110,10 @@ def build_distribution(args: argparse.Namespace):
         if args.librispeech and args.subset:
             source = LibriSpeechSource(args.librispeech, args.subset)
     else:
-        dist, source, array = SceneDistribution(), get_speech_source(args.librispeech, args.subset), "nao"
+        subset = args.subset
+        if args.librispeech and not subset:
+            subset = default_subset(args.librispeech)
+        dist, source, array = SceneDistribution(), get_speech_source(args.librispeech, subset), "nao"
     changes = {}
     for name, value in (("t60", args.t60), ("snr", args.snr)):
         if value is not None:
@@ -239,5 +264,6 @@ def main(args: argparse.Namespace) -> int:
     print(f"wrote {out}{os.sep}: audio.wav ({episode.n_mics} ch, {episode.n_samples / episode.fs:g} s, float32), "
           f"truth.csv, scene.json | room {'x'.join(f'{d:.2f}' for d in scene.room.dims)} m, "
           f"T60 {scene.room.t60:.2f} s, SNR {scene.snr_db:.1f} dB, {kind} source, {meta['backend']} backend, "
-          f"{scene.speech['corpus']} speech")
+          f"{scene.speech['corpus']} speech"
+          + (f" (subset {scene.speech['subset']})" if scene.speech.get("subset") else ""))
     return 0
