@@ -122,3 +122,26 @@ def test_features_zero_sample_rate_is_refused(scene_dir, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_track_scores_against_the_truth_that_simulate_writes(scene_dir, tmp_path, capsys):
+    csv, png = tmp_path / "doa.csv", tmp_path / "doa.png"
+    assert main(["track", str(scene_dir / "audio.wav"), "--tracker", "srp-max:32x64", "--truth",
+                 str(scene_dir / "truth.csv"), "--out", str(csv), "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "RMSAE" in out and "non-silent" in out
+    est = pd.read_csv(csv)
+    assert est.columns[-1] == "error_deg"
+    truth = pd.read_csv(scene_dir / "truth.csv")
+    cos = np.sum(est[["x", "y", "z"]].to_numpy() * truth[["x", "y", "z"]].to_numpy(), 1)
+    assert np.allclose(est.error_deg, np.degrees(np.arccos(np.clip(cos, -1, 1))), atol=0.3)  # CSV keeps 4 decimals
+    rmsae_printed = float(out.split("RMSAE ", 1)[1].split()[0])
+    assert rmsae_printed == pytest.approx(float(np.sqrt(np.mean(est.error_deg ** 2))), abs=0.05)
+    assert png.stat().st_size > 1000
+    # A truth table on another frame grid is a one-line error, before anything is written.
+    bad = tmp_path / "short.csv"
+    truth.iloc[:-2].to_csv(bad, index=False)
+    assert main(["track", str(scene_dir / "audio.wav"), "--truth", str(bad), "--out", str(tmp_path / "x.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "frames but the tracker produced" in err and "\n" not in err
+    assert not (tmp_path / "x.csv").exists()

@@ -32,7 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.set_defaults(func=rmsae_vs_t60)
 
     q = kinds.add_parser("episode", help="elevation/azimuth over time of one episode (paper Fig. 7)")
-    q.add_argument("results", help="results JSON file with per-frame estimates")
+    q.add_argument("results", nargs="+",
+                   help="results JSON file(s) with per-frame estimates; several files (runs of the same task) "
+                        "are compared in one figure, one line per run")
     q.add_argument("--episode", type=int, required=True, help="episode index within the task")
     q.add_argument("--no-render", action="store_true",
                    help="do not re-render the episode: no SRP maxima and no silent-frame shading")
@@ -82,9 +84,19 @@ def episode(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    results = load_results(args.results)
+    runs = [load_results(path) for path in args.results]
+    results, others = runs[0], runs[1:]
     task = results["task"]["id"]
     stored = episode_frames(results, args.episode)
+    for path, other in zip(args.results[1:], others):
+        from doabench.errors import InputError
+
+        if other["task"]["id"] != task:
+            raise InputError(f"{path} is a run of task {other['task']['id']!r}, not {task!r}: compare runs of one task")
+        theirs = episode_frames(other, args.episode)
+        if len(theirs["truth"]) != len(stored["truth"]) or not np.allclose(theirs["truth"], stored["truth"], atol=1e-4):
+            raise InputError(f"{path}: episode {args.episode} has another truth than in {args.results[0]} "
+                             "(another task version or frame spec?)")
     maxima = None
     vad = stored["vad"]  # results files written since the VAD was kept per frame have it
     label = "SRP-PHAT maximum"
@@ -100,13 +112,14 @@ def episode(args: argparse.Namespace) -> int:
                 truth["directions"], stored["truth"], atol=1e-5):
             # The episode is re-created from its seed; a mismatch means the code or corpus changed since the run.
             print(f"doabench plot: warning: the re-rendered episode {args.episode} differs from the truth stored in "
-                  f"{args.results}; the maxima and silent frames may not belong to this run", file=sys.stderr)
+                  f"{args.results[0]}; the maxima and silent frames may not belong to this run", file=sys.stderr)
         vad = np.asarray(truth["vad"], bool)
         directions = map_argmax_directions(torch.as_tensor(srp), planar=array.planar).numpy()
         maxima = np.where(vad[:, None], directions, np.nan)  # silent frames have no map (zeros)
         label = f"SRP-PHAT {res[0]}x{res[1]} maximum"
     out = args.out or f"{task}-episode-{args.episode}"
-    return _done(plot_episode(results, args.episode, out, maxima=maxima, vad=vad, maxima_label=label))
+    return _done(plot_episode(results, args.episode, out, maxima=maxima, vad=vad, maxima_label=label,
+                              others=others))
 
 
 def maps(args: argparse.Namespace) -> int:

@@ -25,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default=None)
     p.add_argument("--out", required=True, help="output CSV")
     p.add_argument("--plot", help="also draw azimuth and elevation over time into this PNG/PDF")
+    p.add_argument("--truth", metavar="truth.csv",
+                   help="score against a truth table (as `doabench simulate` writes: time_s, ..., x, y, z, vad per "
+                        "frame): prints the RMSAE, adds an error_deg column and draws the truth in --plot")
     p.set_defaults(func=main)
 
 
@@ -73,8 +76,39 @@ def check_plot_path(path: str | Path) -> None:
                          f"{', '.join(sorted(formats))}")
 
 
-def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad: np.ndarray, title: str) -> None:
-    """Azimuth and elevation over time, silent frames shaded grey."""
+def read_truth(path: str | Path, n_frames: int, times: np.ndarray) -> dict[str, np.ndarray]:
+    """A per-frame truth table (``doabench simulate``'s truth.csv): directions ``(T, 3)`` and vad."""
+    import pandas as pd
+
+    from doabench.errors import InputError
+
+    try:
+        table = pd.read_csv(path)
+    except FileNotFoundError:
+        raise InputError(f"--truth {path} does not exist") from None
+    except Exception as exc:
+        raise InputError(f"--truth {path} is not a CSV table ({type(exc).__name__}: {exc})") from None
+    missing = [c for c in ("x", "y", "z") if c not in table.columns]
+    if missing:
+        raise InputError(f"--truth {path} lacks column(s) {', '.join(missing)} (expected time_s, elevation_deg, "
+                         "azimuth_deg, x, y, z, vad as `doabench simulate` writes)")
+    if len(table) != n_frames:
+        raise InputError(f"--truth {path} has {len(table)} frames but the tracker produced {n_frames} "
+                         "(the truth must be on the tracker's frame grid, K = 4096 and hop 3072 at 16 kHz)")
+    if "time_s" in table.columns and not np.allclose(table["time_s"].to_numpy(float), times, atol=1e-3):
+        raise InputError(f"--truth {path}: its frame times differ from the tracker's (another frame spec?)")
+    d = table[["x", "y", "z"]].to_numpy(float)
+    norms = np.linalg.norm(d, axis=1)
+    if not np.all(np.isfinite(d)) or np.any(norms == 0):
+        raise InputError(f"--truth {path}: x, y, z must be finite, non-zero directions")
+    vad = table["vad"].to_numpy().astype(bool) if "vad" in table.columns else np.ones(len(table), bool)
+    return {"directions": d / norms[:, None], "vad": vad}
+
+
+def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad: np.ndarray, title: str,
+               truth: np.ndarray | None = None) -> None:
+    """Azimuth and elevation over time, silent frames shaded grey (in the legend), the truth
+    overlaid when given."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -83,15 +117,25 @@ def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad:
     from doabench.geometry import unit_to_angles
     from doabench.results.files import atomic_path
 
+    from matplotlib.patches import Patch
+
     el, az = unit_to_angles(directions)
+    true_angles = None if truth is None else unit_to_angles(truth)
     fig, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 4.5))
-    for ax, values, label in ((axes[0], np.degrees(az), "azimuth [deg]"), (axes[1], np.degrees(el), "elevation [deg]")):
-        ax.plot(times, values, ".-", lw=1, ms=3)
+    for i, (ax, values, label) in enumerate(((axes[0], np.degrees(az), "azimuth [deg]"),
+                                             (axes[1], np.degrees(el), "elevation [deg]"))):
+        if true_angles is not None:
+            ax.plot(times, np.degrees(true_angles[1 - i]), "-", color="C3", lw=1.6, label="truth")
+        ax.plot(times, values, ".-", lw=1, ms=3, color="C0", label="estimate")
         ax.set_ylabel(label)
         half = (times[1] - times[0]) / 2 if len(times) > 1 else 0.1
         for t, active in zip(times, vad):
             if not active:
                 ax.axvspan(t - half, t + half, color="0.85", lw=0)
+    handles, _ = axes[0].get_legend_handles_labels()
+    if not np.all(vad):
+        handles.append(Patch(color="0.85", label="silent frames (no voice activity)"))
+    axes[0].legend(handles=handles, fontsize="small", loc="upper right", ncol=3)
     axes[0].set_ylim(-180, 180)
     axes[1].set_ylim(0, 180)
     axes[1].set_xlabel("time [s]")
@@ -114,8 +158,14 @@ def main(args: argparse.Namespace) -> int:
     # Every output is checked before the work: none may be an input, a folder or unwritable.
     check_output_file(args.out, [args.recording, args.array], "--out")
     if args.plot:
-        check_output_file(args.plot, [args.recording, args.array, args.out], "--plot")
+        check_output_file(args.plot, [args.recording, args.array, args.out, args.truth], "--plot")
         check_plot_path(args.plot)
+    if args.truth:
+        check_output_file(args.out, [args.truth], "--out")
+        if not Path(args.truth).is_file():
+            from doabench.errors import InputError
+
+            raise InputError(f"--truth {args.truth} does not exist")
     tracker = make_tracker(args.tracker, **parse_options(args.tracker_opt))
     from doabench.runner import check_trained
 
@@ -137,10 +187,20 @@ def main(args: argparse.Namespace) -> int:
     table = pd.DataFrame({"time_s": out["times"], "elevation_deg": np.degrees(el), "azimuth_deg": np.degrees(az),
                           "x": out["directions"][:, 0], "y": out["directions"][:, 1], "z": out["directions"][:, 2],
                           "vad": np.asarray(out["vad"], np.int8)})
+    truth = None
+    if args.truth:
+        from doabench.metrics import episode_metrics, frame_errors_deg
+
+        truth = read_truth(args.truth, len(table), out["times"])
+        table["error_deg"] = frame_errors_deg(out["directions"], truth["directions"])
+        m = episode_metrics(out["directions"], truth["directions"], truth["vad"])
+        print(f"scored against {args.truth}: RMSAE {m['rmsae_all']:.2f} deg all frames, "
+              f"{m['rmsae_nonsilent']:.2f} deg non-silent (truth's vad); MAE {m['mae']:.2f}, median {m['median']:.2f}")
     with atomic_path(args.out) as tmp:
         table.to_csv(tmp, index=False, float_format="%.4f")
     print(f"wrote {args.out}: {len(table)} frames from {args.recording} with {args.tracker}")
     if args.plot:
-        plot_track(args.plot, out["times"], out["directions"], out["vad"], f"{Path(args.recording).name}: {args.tracker}")
+        plot_track(args.plot, out["times"], out["directions"], out["vad"], f"{Path(args.recording).name}: {args.tracker}",
+                   truth=None if truth is None else truth["directions"])
         print(f"wrote {args.plot}")
     return 0

@@ -82,6 +82,42 @@ def grid_curves(results: dict[str, Any], snr: float, metric: str) -> tuple[np.nd
     return t60, values, ci
 
 
+def cells_of(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """A run's cells: a grid run's ``cells``, or for a run of one grid cell (``sim-t60-0.3-snr-30``)
+    that cell, from its summary."""
+    if results.get("cells"):
+        return dict(results["cells"])
+    from doabench.envs.registry import get_task_spec
+    from doabench.errors import DoabenchError
+
+    try:
+        cell = get_task_spec(results["task"]["id"]).params.get("cell")
+    except DoabenchError:
+        cell = None
+    if not cell or "t60" not in cell or "snr" not in cell:
+        return {}
+    s = results.get("summary") or {}
+    return {results["task"]["id"]: {"t60": float(cell["t60"]), "snr": float(cell["snr"]),
+                                    "rmsae_all": s.get("rmsae_all"), "rmsae_nonsilent": s.get("rmsae_nonsilent"),
+                                    "rmsae_all_ci95": s.get("rmsae_all_ci95"),
+                                    "rmsae_nonsilent_ci95": s.get("rmsae_nonsilent_ci95"),
+                                    "n_episodes": (results.get("task") or {}).get("episodes_run")}}
+
+
+def merge_cell_runs(runs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Runs with cells, those of one tracker merged into one (per-cell results files become one line)."""
+    merged: dict[str, dict[str, Any]] = {}
+    for run in runs:
+        cells = cells_of(run)
+        if not cells:
+            continue
+        label = tracker_label(run)
+        if label not in merged:
+            merged[label] = {**run, "cells": {}}
+        merged[label]["cells"].update(cells)
+    return list(merged.values())
+
+
 def available_snrs(runs: Sequence[dict[str, Any]]) -> list[float]:
     return sorted({float(c["snr"]) for r in runs for c in (r.get("cells") or {}).values()})
 
@@ -91,9 +127,10 @@ def plot_rmsae_vs_t60(runs: Sequence[dict[str, Any]], out: str | Path, snrs: Seq
     """One panel per SNR, one line per run (tracker) with its 95% bootstrap band."""
     if metric not in METRICS:
         raise InputError(f"--metric must be one of {', '.join(METRICS)}, not {metric!r}")
-    grid_runs = [r for r in runs if r.get("cells")]
+    grid_runs = merge_cell_runs(runs)
     if not grid_runs:
-        raise InputError("none of the results files has per-cell results (run a grid task such as sim-grid)")
+        raise InputError("none of the results files has per-cell results (run a grid task such as sim-grid, "
+                         "or its cells such as sim-t60-0.3-snr-30)")
     known = available_snrs(grid_runs)
     snrs = list(snrs) if snrs else known
     missing = [s for s in snrs if not any(math.isclose(s, k) for k in known)]
@@ -181,10 +218,14 @@ def _shade_silence(ax, times: np.ndarray, vad: np.ndarray) -> None:
 
 def plot_episode(results: dict[str, Any], episode: int, out: str | Path, maxima: np.ndarray | None = None,
                  vad: np.ndarray | None = None, maxima_label: str = "SRP-PHAT maximum",
-                 title: str | None = None) -> list[Path]:
+                 title: str | None = None, others: Sequence[dict[str, Any]] = ()) -> list[Path]:
     """Elevation and azimuth over time: truth (solid), estimate (dashed), map maxima (crosses),
-    grey silent frames. ``maxima (T, 3)`` and ``vad (T,)`` come from re-rendering the episode."""
+    grey silent frames. ``maxima (T, 3)`` and ``vad (T,)`` come from re-rendering the episode.
+    ``others``: more runs of the same task, drawn as further estimates (one colour each)."""
+    from matplotlib.patches import Patch
+
     f = episode_frames(results, episode)
+    extra = [(tracker_label(r), _degrees(episode_frames(r, episode)["estimates"])) for r in others]
     t = f["times"]
     el_t, az_t = _degrees(f["truth"])
     el_e, az_e = _degrees(f["estimates"])
@@ -200,19 +241,29 @@ def plot_episode(results: dict[str, Any], episode: int, out: str | Path, maxima:
         ax.plot(*(_break_wraps(t, truth) if index else (t, truth)), "-", color="C3", linewidth=1.8, label="truth")
         ax.plot(*(_break_wraps(t, est) if index else (t, est)), "--", color="C0", linewidth=1.5,
                 label=f"estimate ({tracker_label(results)})")
+        for k, (name_k, angles) in enumerate(extra):
+            e = angles[index]
+            ax.plot(*(_break_wraps(t, e) if index else (t, e)), ["-.", ":", "--"][k % 3], color=("C2", "C4", "C5", "C6", "C7", "C8", "C9")[k % 7],
+                    linewidth=1.3, label=f"estimate ({name_k})")
         ax.set_ylabel(name)
         ax.set_ylim(*lim)
         ax.set_yticks(np.arange(lim[0], lim[1] + 1, 45))
         ax.grid(True, alpha=0.3)
     axes[1].set_xlabel("time [s]")
-    axes[0].legend(fontsize="small", loc="upper right", ncol=3)
+    handles, _ = axes[0].get_legend_handles_labels()
+    if vad is not None and not np.all(vad):
+        handles.append(Patch(color="0.85", label="silent frames"))
+    axes[0].legend(handles=handles, fontsize="small", loc="upper right", ncol=3)
     row = f["row"]
     scene = ", ".join(x for x in (
         f"T60 {row['t60']:.2g} s" if row.get("t60") is not None else "",
         f"SNR {row['snr']:.3g} dB" if row.get("snr") is not None else "") if x)
+    scores = f": RMSAE {row['rmsae_all']:.1f}° all, {row['rmsae_nonsilent']:.1f}° non-silent"
+    if others:
+        scores = ": RMSAE all " + ", ".join(
+            f"{tracker_label(r)} {episode_frames(r, episode)['row']['rmsae_all']:.1f}°" for r in (results, *others))
     fig.suptitle(title or f"{row.get('task') or results['task']['id']} episode {episode}"
-                 + (f" ({scene})" if scene else "") + f": RMSAE {row['rmsae_all']:.1f}° all, "
-                 f"{row['rmsae_nonsilent']:.1f}° non-silent" + ("; grey = silent" if vad is not None else ""),
+                 + (f" ({scene})" if scene else "") + scores + ("; grey = silent" if vad is not None else ""),
                  fontsize="medium")
     fig.tight_layout()
     return save_figure(fig, out)
@@ -262,8 +313,9 @@ def plot_maps(maps: dict[tuple[int, int], np.ndarray], true_direction: np.ndarra
         el, az = np.degrees(el), np.degrees(az)
         d_el = el[1] - el[0]
         d_az = 360.0 / n_phi
-        ax.imshow(m, origin="upper", aspect="auto", cmap="viridis", interpolation="nearest",
-                  extent=(az[0] - d_az / 2, az[-1] + d_az / 2, el[-1] + d_el / 2, el[0] - d_el / 2))
+        image = ax.imshow(m, origin="upper", aspect="auto", cmap="viridis", interpolation="nearest",
+                          extent=(az[0] - d_az / 2, az[-1] + d_az / 2, el[-1] + d_el / 2, el[0] - d_el / 2))
+        fig.colorbar(image, ax=ax, fraction=0.05, pad=0.02, label="normalised SRP (max 1)")
         i, j = np.unravel_index(int(np.argmax(m)), m.shape)
         ax.plot(az[j], el[i], "o", color="black", markersize=7, markeredgecolor="white", label="map maximum")
         ax.plot(az_true, el_true, "o", color="red", markersize=7, markeredgecolor="white", label="true DOA")
