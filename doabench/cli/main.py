@@ -26,6 +26,7 @@ SUBCOMMAND_MODULES = (
     "make_dataset",
     "dataset",
     "train",
+    "export",
     "leaderboard",
     "sweep",
     "plot",

@@ -1,0 +1,33 @@
+"""``doabench export --tracker ID --format onnx --out FILE``: deploy a learned tracker's network."""
+from __future__ import annotations
+
+import argparse
+
+from doabench.cli.common import add_tracker_options, check_output_file
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="export a learned tracker's network (ONNX)",
+                       description="Write the full-sequence network of a learned tracker as ONNX: input = the "
+                                   "network input of a whole episode (frame axis 2, batch and frames dynamic), "
+                                   "output = directions (batch, frames, 3). Verified against onnxruntime when it "
+                                   "is installed (pip install 'doabench[onnx]').")
+    add_tracker_options(p)
+    p.add_argument("--format", choices=["onnx"], default="onnx", help="export format (onnx)")
+    p.add_argument("--out", required=True, help="output file, e.g. cross3d-8x16.onnx")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from doabench.export_onnx import export_onnx
+    from doabench.runner import check_trained
+    from doabench.trackers.registry import make_tracker, parse_options
+
+    check_output_file(args.out)
+    tracker = make_tracker(args.tracker, **parse_options(args.tracker_opt))
+    check_trained(tracker)  # an untrained model is exported only with weights=random
+    info = export_onnx(tracker, args.out, tracker_id=args.tracker)
+    check = ("not verified (install onnxruntime: pip install 'doabench[onnx]')" if info["max_abs_diff"] is None
+             else f"verified with onnxruntime (max |difference| {info['max_abs_diff']:.2e})")
+    print(f"wrote {args.out}: {args.tracker}, example input {list(info['input_shape'])} (frame axis 2 dynamic); {check}")
+    return 0

@@ -1,0 +1,47 @@
+"""`doabench export --format onnx` (issue 15): the full-sequence network, checked against
+onnxruntime (the `onnx` extra; skipped without it)."""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from doabench.cli.main import main
+
+
+@pytest.mark.parametrize("tracker", ["cross3d:4x8", "gcc-cnn1d"])
+def test_export_matches_torch_in_onnxruntime(tracker: str, tmp_path: Path, capsys) -> None:
+    ort = pytest.importorskip("onnxruntime", reason="the onnx extra: pip install 'doabench[onnx]'")
+    onnx = pytest.importorskip("onnx")
+    import torch
+
+    import doabench
+    from doabench.export_onnx import example_features
+
+    out = tmp_path / "model.onnx"
+    assert main(["export", "--tracker", tracker, "--format", "onnx", "--out", str(out)]) == 0
+    assert "verified with onnxruntime" in capsys.readouterr().out
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    tr = doabench.make_tracker(tracker)
+    assert meta["doabench_tracker"] == tracker and meta["doabench_weights_sha256"] == tr.weights_hash()
+    # Independently: a longer episode through onnxruntime gives the tracker's own track() directions.
+    feats = example_features(tr, n_frames=20, seed=5)
+    x = tr.episode_input(feats)
+    got = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"]).run(None, {"input": x.numpy()})[0][0]
+    assert got.shape == (20, 3)
+    unit = got / np.linalg.norm(got, axis=1, keepdims=True)
+    with torch.no_grad():
+        expected = tr.track(feats)
+    assert np.abs(unit - expected).max() < 1e-3
+
+
+def test_export_refuses_untrained_and_classical_trackers(tmp_path: Path, capsys) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["export", "--tracker", "cross3d:16x32", "--out", str(tmp_path / "a.onnx")]) == 2
+    assert "no trained weights" in capsys.readouterr().err
+    assert main(["export", "--tracker", "srp-max", "--out", str(tmp_path / "b.onnx")]) == 2
+    assert "no neural network to export" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
