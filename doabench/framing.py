@@ -12,7 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
+
+from doabench.geometry import is_tensor
 
 DEFAULT_FS = 16000
 DEFAULT_WINDOW = 4096
@@ -57,13 +58,13 @@ def frame_times(n: int, window: int, hop: int, fs: int) -> np.ndarray:
     return (np.arange(n) * hop + window / 2) / fs
 
 
-def frame_signal(x: torch.Tensor | np.ndarray, window: int, hop: int):
+def frame_signal(x, window: int, hop: int):
     """Split the last axis into frames: ``(..., samples)`` -> ``(..., frames, window)``.
 
     A strided view (no copy) for both numpy arrays and torch tensors.
     """
     n = n_frames(x.shape[-1], window, hop)
-    if isinstance(x, torch.Tensor):
+    if is_tensor(x):
         return x[..., : (n - 1) * hop + window].unfold(-1, window, hop) if n else x[..., :0].unsqueeze(-1)
     if n == 0:
         return np.zeros(x.shape[:-1] + (0, window), dtype=x.dtype)
@@ -75,7 +76,7 @@ def frame_vad(sample_vad, window: int, hop: int):
 
     A frame is active when more than 2/3 of its samples are active.
     """
-    if isinstance(sample_vad, torch.Tensor):
+    if is_tensor(sample_vad):
         frames = frame_signal(sample_vad.float(), window, hop)
         return frames.mean(-1) > ACTIVE_FRACTION
     frames = frame_signal(np.asarray(sample_vad, dtype=np.float32), window, hop)

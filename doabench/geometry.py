@@ -12,12 +12,24 @@ axis last; they return the same kind of array they were given.
 from __future__ import annotations
 
 import math
-from typing import Union
+import sys
+from typing import TYPE_CHECKING, Union
 
 import numpy as np
-import torch
 
-ArrayLike = Union[np.ndarray, torch.Tensor]
+if TYPE_CHECKING:
+    import torch
+
+# torch is imported lazily: commands that need no tensors (help, list, leaderboard) start in a
+# fraction of the 1.4 s torch's import costs. A tensor can only exist once torch is imported, so
+# "is this a tensor" never needs the import.
+ArrayLike = Union[np.ndarray, "torch.Tensor"]
+
+
+def is_tensor(x) -> bool:
+    """True when ``x`` is a torch tensor (without importing torch)."""
+    torch_module = sys.modules.get("torch")
+    return torch_module is not None and isinstance(x, torch_module.Tensor)
 
 SPEED_OF_SOUND = 343.0  # m/s, the value the issues fix
 # Bound of SRP grids: delay tables and maps grow with the grid (100000x100000 would allocate 37 GiB).
@@ -26,7 +38,7 @@ MAX_GRID_POINTS = 256 * 512
 
 
 def _lib(x: ArrayLike):
-    return torch if isinstance(x, torch.Tensor) else np
+    return sys.modules["torch"] if is_tensor(x) else np
 
 
 def angles_to_unit(elevation: ArrayLike, azimuth: ArrayLike) -> ArrayLike:
@@ -42,17 +54,17 @@ def unit_to_angles(u: ArrayLike) -> tuple[ArrayLike, ArrayLike]:
     u = _prescale(u)  # huge components would overflow rho
     x, y, z = u[..., 0], u[..., 1], u[..., 2]
     rho = lib.sqrt(x * x + y * y)
-    elevation = lib.arctan2(rho, z) if lib is np else torch.atan2(rho, z)
-    azimuth = lib.arctan2(y, x) if lib is np else torch.atan2(y, x)
+    elevation = lib.arctan2(rho, z) if lib is np else lib.atan2(rho, z)
+    azimuth = lib.arctan2(y, x) if lib is np else lib.atan2(y, x)
     return elevation, azimuth
 
 
 def _prescale(u: ArrayLike) -> ArrayLike:
     """``u`` divided by its largest absolute component along the last axis (rows that are all zero
     stay zero), so that squaring the components neither overflows (1e200) nor underflows (1e-200)."""
-    if isinstance(u, torch.Tensor):
+    if is_tensor(u):
         m = u.abs().amax(dim=-1, keepdim=True)
-        return u / torch.where(m > 0, m, torch.ones_like(m))
+        return u / m.where(m > 0, 1.0)
     u = np.asarray(u)
     if not np.issubdtype(u.dtype, np.floating):
         u = u.astype(np.float64)
@@ -63,7 +75,7 @@ def _prescale(u: ArrayLike) -> ArrayLike:
 
 def robust_norm(u: ArrayLike) -> ArrayLike:
     """Euclidean norm over the last axis without overflow or underflow: ``max|u_i| * |u / max|u_i||``."""
-    if isinstance(u, torch.Tensor):
+    if is_tensor(u):
         m = u.abs().amax(dim=-1)
         return m * _prescale(u).norm(dim=-1)
     u = np.asarray(u)
@@ -82,7 +94,7 @@ def normalize(u: ArrayLike, eps: float = 1e-12) -> ArrayLike:
     overflowing to ``inf`` (and then to a zero vector). All-zero vectors stay zero.
     """
     v = _prescale(u)
-    if isinstance(v, torch.Tensor):
+    if is_tensor(v):
         return v / v.norm(dim=-1, keepdim=True).clamp_min(eps)
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), eps)
 
@@ -93,7 +105,9 @@ def great_circle_error(u: ArrayLike, v: ArrayLike) -> ArrayLike:
     atan2(|u x v|, u . v) is accurate for small and large angles alike; arccos of a clamped dot
     product would put a floor of about 1e-4 rad under small float32 errors.
     """
-    if isinstance(u, torch.Tensor) or isinstance(v, torch.Tensor):
+    if is_tensor(u) or is_tensor(v):
+        import torch
+
         u = torch.as_tensor(u)
         v = torch.as_tensor(v, dtype=u.dtype, device=u.device)
         u, v = _prescale(u), _prescale(v)
