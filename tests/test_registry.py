@@ -141,3 +141,15 @@ def test_broken_files_on_the_task_path_only_break_their_own_task(tmp_path):
         r = cli("describe", "--task", task)
         assert r.returncode == 2 and "Traceback" not in r.stderr
         assert r.stderr.strip().splitlines()[-1].startswith("doabench describe: error:")
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["list", "tasks"], ["describe", "--tracker", "srp-max"]])
+def test_commands_that_need_no_tensors_do_not_import_torch(argv):
+    """Start-up: torch's import alone takes about 1.4 s; these commands never touch a tensor."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom doabench.cli.main import main\ntry:\n    main(%r)\nexcept SystemExit:\n    pass\n"
+            "print('TORCH', 'torch' in sys.modules)" % (argv,))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert "TORCH False" in out.stdout, out.stdout[-500:] + out.stderr[-2000:]

@@ -119,6 +119,9 @@ def _module_exists(name: str) -> bool:
 def resolve_tracker(text: str) -> tuple[type[Tracker], str | None, str]:
     """Parse a ``--tracker`` value into (class, spec, id)."""
     head, sep, rest = text.partition(":")
+    _load_builtins()
+    if head in _REGISTRY:  # built in or already registered: plugins (and torch) need not load
+        return _REGISTRY[head], rest or None, head
     trackers = available_trackers()
     attr_text = rest.partition(":")[0]
     looks_like_class = attr_text.isidentifier() and attr_text[:1].isupper()
