@@ -11,7 +11,7 @@ Public API::
 """
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from doabench._version import __version__
 
 from doabench.arrays import MicArray, get_array, load_array_file
 from doabench.envs.registry import available_tasks, get_task_spec, register_task

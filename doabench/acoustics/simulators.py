@@ -302,11 +302,11 @@ class BuiltinSimulator(_TorchBackend):
         self.device = engine.resolve_device(device)
 
     def versions(self) -> dict[str, str]:
-        import doabench
+        from doabench._version import __version__
 
         return {
             "backend": self.name,
-            "doabench": getattr(doabench, "__version__", "unknown"),
+            "doabench": __version__,
             "torch": torch.__version__,
             "device": str(self.device),
             "sinc": f"hann-windowed, {2 * engine.SINC_HALF + 1} taps, 1/{engine.OVERSAMPLE}-sample grid",

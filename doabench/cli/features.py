@@ -41,7 +41,7 @@ def read_audio_rate(path: Path) -> int:
 
 
 def _sidecar(args, extractor, result: np.ndarray, sr: int, resampled: bool) -> dict:
-    from doabench import __version__
+    from doabench._version import __version__
     from doabench.geometry import grid_angles
 
     spec: FrameSpec = extractor.spectrogram_frame_spec if args.kind == "spectrogram" else extractor.frame_spec

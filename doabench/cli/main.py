@@ -11,7 +11,7 @@ import importlib
 import os
 import sys
 
-from doabench import __version__
+from doabench._version import __version__
 from doabench.errors import DoabenchError
 
 # Order is the order of `doabench --help`.

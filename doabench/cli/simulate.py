@@ -227,7 +227,7 @@ def _publish(tmp: Path, out: Path, force: bool) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from doabench import __version__
+    from doabench._version import __version__
     from doabench.acoustics.render import render_scene
     from doabench.acoustics.scenes import sample_scene
     from doabench.acoustics.simulators import get_simulator

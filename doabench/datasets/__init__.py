@@ -5,22 +5,18 @@
 * :class:`DatasetFile` (``doabench dataset info``): read a file;
 * :func:`merge_datasets` (``doabench dataset merge``): join shards;
 * :class:`EpisodeDataset`: a ``torch.utils.data.Dataset`` of per-episode tensors for training;
-* ``--task file:data.h5``: replay a file as a task (kind ``dataset``); importing this package
-  registers the ``file:`` prefix and the kind.
+* ``--task file:data.h5``: replay a file as a task (kind ``dataset``); the ``file:`` prefix and the
+  kind are declared in pyproject.toml (entry-point groups ``doabench.task_prefixes`` and
+  ``doabench.task_kinds``) and loaded by the task registry when first asked for.
 """
 from __future__ import annotations
 
 from doabench.datasets.generate import GenerationResult, make_dataset
 from doabench.datasets.merge import merge_datasets
 from doabench.datasets.reader import DatasetFile
-from doabench.datasets.replay import KIND, PREFIX, DatasetEpisodes, resolve_file_task
+from doabench.datasets.replay import DatasetEpisodes, resolve_file_task
 from doabench.datasets.schema import SCHEMA, parse_features
 from doabench.datasets.torch_dataset import EpisodeDataset
-from doabench.envs.registry import register_prefix
-from doabench.envs.sources import register_task_kind
-
-register_prefix(PREFIX, resolve_file_task)
-register_task_kind(KIND, DatasetEpisodes)
 
 __all__ = ["SCHEMA", "DatasetEpisodes", "DatasetFile", "EpisodeDataset", "GenerationResult", "make_dataset",
            "merge_datasets", "parse_features", "resolve_file_task"]

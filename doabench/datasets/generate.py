@@ -32,7 +32,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from doabench.datasets.layout import EpisodeRecord, is_complete, write_episode
+from doabench.datasets.layout import EpisodeRecord, is_complete, write_episode, write_part  # noqa: F401
 from doabench.datasets.schema import (
     COMPRESSIONS, EPISODES, SCHEMA, FeatureRequest, dumps, episode_name, feature_names, open_h5,
     parse_features, shard_indices,
@@ -134,27 +134,6 @@ def part_tag(config: dict[str, Any]) -> str:
 
     content = {k: v for k, v in config.items() if k not in SHARD_KEYS}
     return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def write_part(folder: Path, record: EpisodeRecord, compression: str, tag: str = "") -> Path:
-    """Write one episode into ``folder/NNNNNN.h5`` atomically (tmp file, fsync, rename); the part
-    carries ``tag`` (:func:`part_tag` of the run's config) so a resume can check it."""
-    import h5py
-
-    name = episode_name(record.index)
-    tmp = folder / f".{name}.{os.getpid()}.tmp"
-    final = folder / f"{name}.h5"
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["part_config"] = tag
-            write_episode(f.create_group(EPISODES), record, compression)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, final)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return final
 
 
 def scan_parts(folder: Path, tag: str | None = None) -> set[int]:
@@ -391,7 +370,7 @@ def file_attributes(config: dict[str, Any], spec_dict: dict[str, Any], item_name
     import numpy
     import torch
 
-    from doabench import __version__
+    from doabench._version import __version__
     from doabench.results.provenance import git_commit
 
     versions = {"doabench": __version__, "torch": torch.__version__, "numpy": numpy.__version__,

@@ -3,17 +3,20 @@
 An :class:`EpisodeRecord` is what one episode stores: arrays keyed by their path inside the group,
 scalar attributes and the metadata dict. :func:`write_episode` writes it with one chunk per
 dataset (an episode is read whole, so one chunk means one read and one decompression per
-dataset) and sets the ``complete`` attribute last, after a flush.
+dataset) and sets the ``complete`` attribute last, after a flush. :func:`write_part` writes one
+episode as its own journal part file (``make-dataset``'s local workers and its Ray engine).
 """
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from doabench.datasets.schema import dumps, episode_name
+from doabench.datasets.schema import EPISODES, dumps, episode_name
 
 # Arrays smaller than this many bytes are stored contiguous and uncompressed: filters cost more
 # than they save on a few hundred bytes.
@@ -121,3 +124,24 @@ def read_episode(group) -> EpisodeRecord:
     group.visititems(visit)
     attrs = {k: v for k, v in group.attrs.items() if k not in ("complete", "index")}
     return EpisodeRecord(int(group.attrs["index"]), arrays, attrs, read_metadata(group))
+
+
+def write_part(folder: Path, record: EpisodeRecord, compression: str, tag: str = "") -> Path:
+    """Write one episode into ``folder/NNNNNN.h5`` atomically (tmp file, fsync, rename); the part
+    carries ``tag`` (:func:`~doabench.datasets.generate.part_tag` of the run's config) so a resume can check it."""
+    import h5py
+
+    name = episode_name(record.index)
+    tmp = folder / f".{name}.{os.getpid()}.tmp"
+    final = folder / f"{name}.h5"
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["part_config"] = tag
+            write_episode(f.create_group(EPISODES), record, compression)
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, final)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return final

@@ -2,7 +2,7 @@
 
 The journal of :mod:`doabench.datasets.generate` is unchanged: ``workers`` Ray actors (one CPU
 each) each hold an :class:`~doabench.datasets.compute.EpisodeComputer`; an actor computes
-episode ``i``, writes its part file with :func:`~doabench.datasets.generate.write_part` into a
+episode ``i``, writes its part file with :func:`~doabench.datasets.layout.write_part` into a
 folder of its own node and sends the file's bytes back. The driver stores them in
 ``<out>.parts/NNNNNN.h5`` atomically (tmp file, fsync, rename), exactly as a local worker
 would, so the nodes need no shared file system, a killed run resumes from the parts the driver
@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from doabench.datasets.generate import write_part
+from doabench.datasets.layout import write_part
 from doabench.datasets.schema import FeatureRequest, episode_name
 from doabench.envs.spec import TaskSpec
 from doabench.ray_support import cluster_cpus, ray_session, unwrap

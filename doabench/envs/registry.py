@@ -4,13 +4,18 @@ Built-in specs are the TOML files in the repository's ``tasks/`` folder (install
 ``doabench.task_specs`` package). More come from folders listed in ``DOABENCH_TASK_PATH``
 (``os.pathsep``-separated) and from :func:`register_task` calls, so a new task needs no edit of
 doabench. Each task is registered with Gymnasium as ``doabench/<id>-v<version>``.
+
+Dynamic task families are named by an id prefix: ``<name>:<rest>`` is resolved by the
+``doabench.task_prefixes`` entry point ``name`` (``file = "doabench.datasets.replay:resolve_file_task"``
+in pyproject.toml gives dataset replay, ``file:data.h5``) or by a :func:`register_prefix` call. This
+module names no task kind.
 """
 from __future__ import annotations
 
 import difflib
 import os
 import sys
-from importlib import resources
+from importlib import metadata, resources
 from pathlib import Path
 from typing import Callable
 
@@ -18,6 +23,8 @@ import gymnasium
 
 from doabench.envs.spec import TaskSpec, load_spec_file, spec_from_dict
 from doabench.errors import ConfigError, NotFoundError
+
+PREFIX_ENTRY_POINT_GROUP = "doabench.task_prefixes"
 
 _TASKS: dict[str, TaskSpec] = {}
 _LOADED = False
@@ -113,6 +120,14 @@ def register_prefix(prefix: str, resolver: Callable[[str], TaskSpec]) -> None:
     _PREFIX_RESOLVERS[prefix] = resolver
 
 
+def _load_prefix(name: str) -> None:
+    """Register the resolver of the ``doabench.task_prefixes`` entry point ``name``, if there is one."""
+    for ep in metadata.entry_points(group=PREFIX_ENTRY_POINT_GROUP):
+        if ep.name == name:
+            _PREFIX_RESOLVERS.setdefault(f"{name}:", ep.load())  # its module may also register it
+            return
+
+
 def available_tasks() -> dict[str, TaskSpec]:
     _ensure_loaded()
     return dict(sorted(_TASKS.items()))
@@ -123,8 +138,9 @@ def get_task_spec(task_id: str | TaskSpec) -> TaskSpec:
     if isinstance(task_id, TaskSpec):
         return task_id
     _ensure_loaded()
-    if task_id.startswith("file:") and "file:" not in _PREFIX_RESOLVERS:
-        import doabench.datasets  # noqa: F401  (registers the "file:" resolver of dataset replay)
+    head, colon, _ = task_id.partition(":")
+    if colon and f"{head}:" not in _PREFIX_RESOLVERS:
+        _load_prefix(head)
     for prefix, resolver in _PREFIX_RESOLVERS.items():
         if task_id.startswith(prefix):
             return resolver(task_id)

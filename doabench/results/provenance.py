@@ -40,7 +40,7 @@ def environment(device: str | None = None) -> dict[str, Any]:
     import numpy
     import torch
 
-    from doabench import __version__
+    from doabench._version import __version__
 
     env = {
         "doabench": __version__,

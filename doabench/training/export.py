@@ -14,7 +14,7 @@ from doabench.training.protocol import check_trainable
 
 def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_id: str | None = None) -> dict[str, Any]:
     """What a weights file records about how it was trained (JSON-serialisable)."""
-    import doabench
+    from doabench._version import __version__
     from doabench.envs.registry import get_task_spec
 
     spec = get_task_spec(state["task"])
@@ -29,7 +29,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
         "frame": tracker.frame_spec.to_dict(),
         "feature_settings": {"delays": getattr(tracker, "delays", "nearest"),
                              "maps": "mean removed, divided by the maximum, zero in silent frames"},
-        "doabench_version": doabench.__version__,
+        "doabench_version": __version__,
         "torch_version": torch.__version__,
         "training": {
             "task": spec.id, "task_version": spec.version, "recipe": state["recipe"],

@@ -1,0 +1,76 @@
+"""The ``simulated`` task kind: rooms, trajectories and speech rendered by a room simulator.
+
+Registered through the ``doabench.task_kinds`` entry-point group (pyproject.toml), like every kind.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from doabench.arrays import get_array
+from doabench.envs.sources import episode_seed, make_speech_source
+from doabench.envs.spec import TaskSpec
+from doabench.episode import Episode
+from doabench.errors import NotFoundError
+
+
+class SimulatedEpisodes:
+    """Episodes of a ``simulated`` task (a single distribution, a grid cell, or a whole grid)."""
+
+    def __init__(self, spec: TaskSpec, librispeech: str | None = None, backend: str = "builtin",
+                 device: str | None = None, scene_overrides: dict[str, Any] | None = None, **_: Any) -> None:
+        """``scene_overrides`` replaces scene-distribution fields of every cell (e.g.
+        ``{"duration_s": 3}`` for quick checks); results record it, and it changes the episodes."""
+        from doabench.acoustics.simulators import get_simulator
+
+        self.spec = spec
+        self.array = get_array(spec.array)
+        self.speech = make_speech_source(dict(spec.params.get("speech", {})), librispeech)
+        self.simulator = get_simulator(backend, device=device)
+        self.device = device
+        if "cells" in spec.params:  # a grid: its cells' episodes, cell after cell
+            from doabench.envs.registry import get_task_spec
+
+            cells = [get_task_spec(c) for c in spec.params["cells"]]
+            self._cells = [(c.params["cell"]["index"], self._distribution(c, scene_overrides), c) for c in cells]
+        else:
+            cell = spec.params.get("cell", {}).get("index")
+            self._cells = [(cell, self._distribution(spec, scene_overrides), spec)]
+        self.scene_overrides = dict(scene_overrides or {})
+        self._per_cell = spec.episodes // len(self._cells)
+
+    @staticmethod
+    def _distribution(spec: TaskSpec, overrides: dict[str, Any] | None):
+        from doabench.acoustics.scenes import SceneDistribution
+
+        return SceneDistribution.from_dict({**dict(spec.params.get("scene", {})), **(overrides or {})})
+
+    def __len__(self) -> int:
+        return self._per_cell * len(self._cells)
+
+    def _locate(self, index: int):
+        if not 0 <= index < len(self):
+            raise NotFoundError(f"task {self.spec.id!r} has {len(self)} episodes; episode {index} does not exist")
+        cell_index, dist, cell_spec = self._cells[index // self._per_cell]
+        j = index % self._per_cell
+        keys = (j,) if cell_index is None else (cell_index, j)
+        return dist, cell_spec, episode_seed(self.spec.base_seed, *keys)
+
+    def scene(self, index: int):
+        from doabench.acoustics.scenes import sample_scene
+
+        dist, _, seed = self._locate(index)
+        return sample_scene(dist, seed, self.speech, array=self.array)
+
+    def episode(self, index: int) -> Episode:
+        from doabench.acoustics.render import render_scene
+
+        _, cell_spec, seed = self._locate(index)
+        episode = render_scene(self.scene(index), self.speech, self.array, simulator=self.simulator,
+                               device=self.device)
+        episode.metadata.update({"task": cell_spec.id, "episode_index": index, "seed": seed})
+        return episode
+
+    def describe(self) -> dict[str, Any]:
+        return {"simulator": self.simulator.name, "simulator_versions": self.simulator.versions(),
+                "speech": dict(self.spec.params.get("speech", {})), "scene_overrides": self.scene_overrides}
+
