@@ -6,6 +6,7 @@ Spec parameters (``[locata]`` section of the task's TOML): ``task`` (1..6), ``ar
 ``auto``: corpus files when present, else WebRTC on the source signal). Run-time options: ``locata_root`` (else ``$DOABENCH_LOCATA``), ``split`` (overrides the
 spec's), ``vad``, ``source`` (a source name, for recordings with several).
 
+Registered through the ``doabench.task_kinds`` entry-point group (pyproject.toml), like every kind.
 One episode per recording found, in recording order; the spec's ``episodes`` is only a
 placeholder (the corpus copy decides).
 """
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 from typing import Any
 
-from doabench.envs.sources import register_task_kind
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, NotFoundError
@@ -81,6 +81,3 @@ class LocataEpisodes:
             "fs": self.fs,
             "truth": "v = R^T (s - p) per sample from interpolated poses; invalid required times are silent",
         }
-
-
-register_task_kind("locata", LocataEpisodes)
