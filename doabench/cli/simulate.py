@@ -155,11 +155,13 @@ def write_outputs(folder: Path, episode, scene_info: dict) -> None:
     import soundfile as sf
 
     from doabench.framing import FrameSpec
+    from doabench.results.files import atomic_path, write_text
 
-    sf.write(str(folder / "audio.wav"), episode.audio.T, episode.fs, subtype="FLOAT")
+    with atomic_path(folder / "audio.wav") as tmp:
+        sf.write(str(tmp), episode.audio.T, episode.fs, subtype="FLOAT")
     frames = FrameSpec(fs=episode.fs)
     truth = episode.frame_truth(frames)
-    with open(folder / "truth.csv", "w", newline="") as f:
+    with atomic_path(folder / "truth.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["time_s", "elevation_deg", "azimuth_deg", "x", "y", "z", "vad"])
         for t, el, az, d, v in zip(truth["times"], np.degrees(truth["elevation"]), np.degrees(truth["azimuth"]),
@@ -167,7 +169,7 @@ def write_outputs(folder: Path, episode, scene_info: dict) -> None:
             w.writerow([f"{t:.6f}", f"{el:.4f}", f"{az:.4f}", f"{d[0]:.6f}", f"{d[1]:.6f}", f"{d[2]:.6f}", int(v)])
     info = dict(scene_info, frames=frames.to_dict(),
                 audio={"file": "audio.wav", "fs": episode.fs, "channels": episode.n_mics, "subtype": "FLOAT"})
-    (folder / "scene.json").write_text(json.dumps(info, indent=1) + "\n")
+    write_text(folder / "scene.json", json.dumps(info, indent=1) + "\n")
 
 
 SIMULATE_FILES = frozenset({"audio.wav", "truth.csv", "scene.json"})

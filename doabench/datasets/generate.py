@@ -40,6 +40,7 @@ from doabench.datasets.schema import (
 from doabench.envs.registry import get_task_spec
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, InputError
+from doabench.results.files import atomic_path
 
 # Config keys that may differ between shards of one dataset (see merge).
 SHARD_KEYS = ("episodes", "shard")
@@ -116,15 +117,6 @@ def journal_lock(folder: Path) -> Iterator[None]:
         yield
     finally:
         os.close(fd)
-
-
-def _fsync_dir(folder: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
 
 def part_tag(config: dict[str, Any]) -> str:
@@ -409,9 +401,8 @@ def assemble(out: Path, folder: Path, indices: Sequence[int], config: dict[str, 
     """Copy the parts of ``indices`` into ``<out>.partial`` and rename it to ``out`` (atomic)."""
     import h5py
 
-    tmp = partial_path(out)
-    tmp.unlink(missing_ok=True)  # a stale one from a killed assembly
-    try:
+    # (a stale .partial from a killed assembly is removed first)
+    with atomic_path(out, tmp=partial_path(out)) as tmp:
         with h5py.File(tmp, "w") as f:
             for k, v in file_attributes(config, spec.to_dict(), feature_names(requests), len(indices), info).items():
                 f.attrs[k] = v
@@ -422,9 +413,3 @@ def assemble(out: Path, folder: Path, indices: Sequence[int], config: dict[str, 
                 name = episode_name(i)
                 with h5py.File(folder / f"{name}.h5", "r") as part:
                     part.copy(part[EPISODES][name], eps, name=name)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, out)
-        _fsync_dir(out.parent)
-    finally:
-        tmp.unlink(missing_ok=True)

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from doabench.datasets.schema import EPISODES, dumps, episode_name
+from doabench.results.files import atomic_path
 
 # Arrays smaller than this many bytes are stored contiguous and uncompressed: filters cost more
 # than they save on a few hundred bytes.
@@ -132,16 +133,9 @@ def write_part(folder: Path, record: EpisodeRecord, compression: str, tag: str =
     import h5py
 
     name = episode_name(record.index)
-    tmp = folder / f".{name}.{os.getpid()}.tmp"
     final = folder / f"{name}.h5"
-    try:
+    with atomic_path(final, tmp=folder / f".{name}.{os.getpid()}.tmp") as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs["part_config"] = tag
             write_episode(f.create_group(EPISODES), record, compression)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, final)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return final

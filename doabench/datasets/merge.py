@@ -8,7 +8,6 @@ killed merge leaves no half-written output.
 from __future__ import annotations
 
 import datetime as _dt
-import os
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -19,6 +18,7 @@ from doabench.datasets.layout import read_episode
 from doabench.datasets.reader import DatasetFile
 from doabench.datasets.schema import EPISODES, dumps, episode_name
 from doabench.errors import InputError
+from doabench.results.files import atomic_path
 
 MERGE_IGNORED = SHARD_KEYS + ("merged_from",)
 
@@ -85,10 +85,7 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path) -> dict[str, A
                         "versions": f.attr_json("versions", {}), "created": f.file.attrs.get("created")}
                        for f in files]
         config["merged_from"] = [{k: m[k] for k in ("file", "shard", "episodes")} for m in merged_from]
-        tmp = partial_path(out)
-        tmp.unlink(missing_ok=True)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        try:
+        with atomic_path(out, tmp=partial_path(out)) as tmp:
             with h5py.File(tmp, "w") as dst:
                 for k, v in first.file.attrs.items():
                     dst.attrs[k] = v
@@ -103,11 +100,6 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path) -> dict[str, A
                     verify_group(owner[i], i)
                     src = owner[i].file[EPISODES]
                     src.copy(src[episode_name(i)], eps, name=episode_name(i))
-            with open(tmp, "rb") as fh:
-                os.fsync(fh.fileno())
-            os.replace(tmp, out)
-        finally:
-            tmp.unlink(missing_ok=True)
         return {"path": str(out), "episodes": len(owner), "duplicates": duplicates, "requested": len(requested),
                 "missing": sorted(set(requested) - set(owner))}
     finally:

@@ -20,6 +20,7 @@ from doabench.datasets.layout import write_part
 from doabench.datasets.schema import FeatureRequest, episode_name
 from doabench.envs.spec import TaskSpec
 from doabench.ray_support import cluster_cpus, ray_session, unwrap
+from doabench.results.files import atomic_path
 
 # Tasks queued per actor: one running, one waiting, so an actor never idles between episodes.
 IN_FLIGHT_PER_WORKER = 2
@@ -47,16 +48,9 @@ class EpisodeWorker:
 def store_part(folder: Path, index: int, data: bytes) -> Path:
     """Write a part received from a worker into the journal atomically (as :func:`write_part`)."""
     name = episode_name(index)
-    tmp = folder / f".{name}.{os.getpid()}.tmp"
     final = folder / f"{name}.h5"
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, final)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_path(final, tmp=folder / f".{name}.{os.getpid()}.tmp") as tmp:
+        tmp.write_bytes(data)
     return final
 
 

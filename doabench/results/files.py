@@ -1,4 +1,8 @@
-"""Atomic file writing: a crash or Ctrl-C never leaves a half-written output behind."""
+"""Atomic file writing: a crash, Ctrl-C or power cut never leaves a half-written output behind.
+
+:func:`atomic_path` is the one helper for every file doabench writes (results, leaderboards,
+figures, checkpoints, caches, dataset parts and files, exports): write a temporary file in the
+target's folder, fsync it, rename it over the target, fsync the folder."""
 from __future__ import annotations
 
 import contextlib
@@ -31,19 +35,45 @@ def apply_umask(path: str | Path, folder: bool = False) -> None:
     os.chmod(path, (0o777 if folder else 0o666) & ~current_umask())
 
 
+def fsync_file(path: str | Path) -> None:
+    """Flush ``path``'s content to the disk."""
+    with open(path, "rb") as fh:
+        os.fsync(fh.fileno())
+
+
+def fsync_dir(folder: str | Path) -> None:
+    """Flush ``folder``'s entries (a rename into it) to the disk, where the platform allows."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 @contextlib.contextmanager
-def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path in the target's folder; on success it replaces ``path`` atomically."""
+def atomic_path(path: str | Path, suffix: str | None = None, tmp: str | Path | None = None) -> Iterator[Path]:
+    """Yield a temporary path in the target's folder; on success it is fsynced, replaces ``path``
+    atomically and the folder is fsynced. The temporary file is a fresh ``.<name>.XXXX<suffix>``
+    (mode as a plain ``open()`` gives), or ``tmp`` when the caller needs a name it recognises later
+    (a stale one is removed first); it never outlives the block."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    if tmp is None:
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent)
+        os.close(fd)
+        tmp_path = Path(name)
+    else:
+        tmp_path = Path(tmp)
+        tmp_path.unlink(missing_ok=True)
     try:
         yield tmp_path
         if tmp_path.exists():
-            apply_umask(tmp_path)
+            if tmp is None:
+                apply_umask(tmp_path)
+            fsync_file(tmp_path)
         os.replace(tmp_path, path)
+        fsync_dir(path.parent)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
