@@ -50,20 +50,29 @@ def parse_list(text: str | Sequence[str], what: str) -> list[str]:
     return list(dict.fromkeys(items))  # duplicates once, order kept
 
 
-def partial_path_for(out: Path, task_id: str, tracker_id: str) -> Path:
+def run_stem(task_id: str, tracker_id: str, options: dict[str, Any] | None = None, delays: str = "nearest") -> str:
+    """The results file stem ``doabench run`` gives this configuration (options, delays and a
+    ``weights=FILE``'s content hash included), so a sweep finds its own finished runs."""
+    from doabench.results.provenance import sha256_file
     from doabench.results.writer import results_stem
 
-    return out / f".{results_stem(task_id, tracker_id)}.partial.jsonl"
+    weights = (options or {}).get("weights")
+    weights_hash = sha256_file(weights) if weights and Path(str(weights)).is_file() else None
+    return results_stem(task_id, tracker_id, options, delays, weights_hash)
+
+
+def partial_path_for(out: Path, task_id: str, tracker_id: str, options: dict[str, Any] | None = None,
+                     delays: str = "nearest") -> Path:
+    return out / f".{run_stem(task_id, tracker_id, options, delays)}.partial.jsonl"
 
 
 def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | None, delays: str,
                      options: dict[str, Any]) -> Path | None:
     """The results file of a finished run with these settings, else None (the run is (re)done)."""
     from doabench.envs.registry import get_task_spec
-    from doabench.results.writer import results_stem
 
-    path = out / f"{results_stem(task_id, tracker_id)}.json"
-    if not path.is_file() or partial_path_for(out, task_id, tracker_id).exists():
+    path = out / f"{run_stem(task_id, tracker_id, options, delays)}.json"
+    if not path.is_file() or partial_path_for(out, task_id, tracker_id, options, delays).exists():
         return None
     try:
         r = json.loads(path.read_text())
@@ -90,7 +99,7 @@ def execute_run(tracker_id: str, task_id: str, out: str | Path, episodes: int | 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tracker = make_tracker(tracker_id, **options)
-    partial = partial_path_for(out, task_id, tracker_id)
+    partial = partial_path_for(out, task_id, tracker_id, options, delays)
     with run_lock(partial):
         results = run_task(tracker, task_id, episodes=episodes, delays=delays, tracker_options=options,
                            partial_path=partial, progress=progress, keep_frames=keep_frames, lock=False,
@@ -99,11 +108,11 @@ def execute_run(tracker_id: str, task_id: str, out: str | Path, episodes: int | 
     return results
 
 
-def _finish(run: SweepRun, results: dict[str, Any], out: Path) -> None:
+def _finish(run: SweepRun, results: dict[str, Any], out: Path, options: dict[str, Any], delays: str) -> None:
     from doabench.results.writer import write_results
 
     json_path, _ = write_results(results, out)
-    partial_path_for(out, run.task, run.tracker).unlink(missing_ok=True)
+    partial_path_for(out, run.task, run.tracker, options, delays).unlink(missing_ok=True)
     run.status, run.json_path = "done", json_path
     run.rmsae_all = float(results["summary"]["rmsae_all"])
 
@@ -143,7 +152,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
         for run in todo:
             t0 = time.perf_counter()
             try:
-                _finish(run, execute_run(run.tracker, run.task, out, *args, progress=progress), out)
+                _finish(run, execute_run(run.tracker, run.task, out, *args, progress=progress), out, options, delays)
             except DoabenchError as exc:
                 run.status, run.error = "failed", str(exc)
             run.seconds = time.perf_counter() - t0
@@ -183,7 +192,7 @@ def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, address: str | None
                 ready, _ = ray.wait(list(refs), num_returns=1)
                 run, t0 = refs.pop(ready[0])
                 try:
-                    _finish(run, ray.get(ready[0]), out)
+                    _finish(run, ray.get(ready[0]), out, options, delays)
                 except Exception as exc:
                     exc = unwrap(exc)
                     if not isinstance(exc, DoabenchError):

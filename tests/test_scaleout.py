@@ -323,3 +323,17 @@ def test_two_processes_train_the_weights_of_one_and_resume(tmp_path, monkeypatch
         assert hb["trajectories_seen"] == ha["trajectories_seen"]
     assert len((two / "log.csv").read_text().splitlines()) == 3  # header + 2 epochs, written once
     assert json.loads((two / "distributed.json").read_text())["world_size"] == 2
+
+
+def test_sweep_with_options_finds_its_own_finished_runs(task_dir, tmp_path, capsys):
+    """Runs with options or exact delays are named by a configuration hash; a second sweep with
+    the same settings must find them (and rerun nothing)."""
+    out = tmp_path / "results"
+    args = ["sweep", "--trackers", "srp-max:4x8", "--tasks", TASK, "--episodes", "1", "--delays", "exact",
+            "--quiet", "--out", str(out)]
+    assert main(args) == 0
+    names = [p.name for p in out.glob("*.json")]
+    assert len(names) == 1 and names[0].startswith(f"{TASK}__srp-max_4x8__")
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "(0 run now, 1 already done, 0 failed)" in capsys.readouterr().out
