@@ -292,3 +292,13 @@ def test_train_on_cuda_end_to_end(tmp_path, librispeech_root):
 
     state = load_checkpoint(out / "checkpoint.safetensors")
     assert state["device"].startswith("cuda") and state["precision"] == "bf16" and state["epoch"] == 1
+
+
+def test_cpu_preset_without_a_cache_leaves_no_run_folder(tmp_path, capsys):
+    from doabench.cli.main import main as cli
+
+    out = tmp_path / "runs" / "x"
+    rc = cli(["train", "--tracker", "cross3d:4x8", "--tracker-opt", "weights=random", "--preset", "cpu",
+              "--cache-root", str(tmp_path / "nocache"), "--out", str(out), "--quiet"])
+    assert rc == 2 and "--build-cache" in capsys.readouterr().err
+    assert not out.exists()

@@ -7,9 +7,10 @@ from pathlib import Path
 from typing import Iterable
 
 
-def add_tracker_options(p: argparse.ArgumentParser, required: bool = True, default: str | None = None) -> None:
-    p.add_argument("--tracker", required=required, default=default,
-                   help="tracker id (srp-max, srp-max:32x64, cross3d:16x32) or package.module:Class[:spec]")
+def add_tracker_options(p: argparse.ArgumentParser, required: bool = True, default: str | None = None,
+                        help: str = "tracker id (srp-max, srp-max:32x64, cross3d:16x32) or "
+                                    "package.module:Class[:spec]") -> None:
+    p.add_argument("--tracker", required=required, default=default, help=help)
     p.add_argument("--tracker-opt", action="append", default=[], metavar="KEY=VALUE",
                    help="option passed to the tracker's constructor (repeatable), e.g. weights=FILE")
 

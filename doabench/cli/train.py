@@ -17,7 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Train a learned tracker with the Cross3D paper's recipe (--preset paper) or the "
                                    "CPU preset (--preset cpu, cached trajectories). Checkpoints every epoch; "
                                    "--resume continues exactly. See docs/training.md.")
-    add_tracker_options(p)
+    add_tracker_options(p, help="learned tracker to train: cross3d:16x32 (any resolution), max-cnn1d, gcc-cnn1d, "
+                                "spec-cnn2d, seldnet, or a package.module:Class plug-in with a trainable network")
     p.add_argument("--task", default="sim-train", help="training distribution (default: sim-train)")
     p.add_argument("--preset", choices=["paper", "cpu"], default="paper", help="training recipe (default: paper)")
     p.add_argument("--epochs", type=int, help="number of epochs (default: the preset's)")
@@ -45,7 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dataset", metavar="FILE",
                    help="train from a dataset file made by `doabench make-dataset` (stored features) instead")
     p.add_argument("--build-cache", action="store_true",
-                   help="only simulate the missing validation and training cache items, then exit")
+                   help="only simulate the missing validation and training cache items, then exit; the cpu "
+                        "preset needs this step first (it can run in a second process while training uses "
+                        "what is there, see --min-cache)")
     p.add_argument("--min-cache", type=int, default=1,
                    help="wait until this many training trajectories are cached before each epoch")
     p.add_argument("--threads", type=int, help="torch CPU threads")

@@ -319,6 +319,8 @@ class Trainer:
 
     # -- the loop ---------------------------------------------------------------------------------
     def run(self) -> list[dict[str, Any]]:
+        if self.options.dataset is None and self.recipe.data == "cache":
+            self._train_cache()  # a missing cache is an error before the run folder is written
         self.out.mkdir(parents=True, exist_ok=True)
         history: list[dict[str, Any]] = []
         start, best, compute_s, seen = 0, math.inf, 0.0, 0
