@@ -192,7 +192,7 @@ def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, address: str | None
                 ready, _ = ray.wait(list(refs), num_returns=1)
                 run, t0 = refs.pop(ready[0])
                 try:
-                    _finish(run, ray.get(ready[0]), out, options, delays)
+                    _finish(run, ray.get(ready[0]), out, options=args[2], delays=args[1])
                 except Exception as exc:
                     exc = unwrap(exc)
                     if not isinstance(exc, DoabenchError):
