@@ -1,6 +1,6 @@
 """LOCATA support against a simulated miniature corpus written in the official format.
 
-The fixture (doabench.locata.fixture) simulates tasks 1, 3 and 5 with the builtin room simulator
+The fixture (tests/fixtures/locata.py) simulates tasks 1, 3 and 5 with the builtin room simulator
 (T60 0.2 s, 4 s each, a rotated static array, a static array with a moving talker and a moving,
 turning array) and writes every file as LOCATA does. The reader must recover the simulated truth
 and srp-max must track it through the whole benchmark path (registry, environment, runner).
@@ -19,7 +19,7 @@ from doabench.arrays import get_array
 from doabench.errors import InputError, NotFoundError
 from doabench.geometry import great_circle_error
 from doabench.locata import LOCATA_ENV, LocataEpisodes, find_recordings, read_recording
-from doabench.locata.fixture import rotation_matrix, write_fixture, write_time_table
+from fixtures.locata import rotation_matrix, write_fixture, write_time_table
 from doabench.locata.tables import read_times
 from doabench.locata.truth import interpolate_rotations
 

@@ -123,7 +123,7 @@ def test_srp_max_sanity_bound_on_low_reverb_cell(librispeech_root):
 
 @pytest.fixture(scope="module")
 def locata_fixture(tmp_path_factory):
-    from doabench.locata.fixture import write_fixture
+    from fixtures.locata import write_fixture
 
     root = tmp_path_factory.mktemp("locata")
     write_fixture(root, tasks=(1, 3, 5), duration_s=2.0, simulator="freefield", seed=1)
