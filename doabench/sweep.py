@@ -1,7 +1,7 @@
 """``doabench sweep``: every (tracker, task) run into one results folder, then its leaderboard.
 
 Each run is what ``doabench run --tracker A --task X --out DIR`` does, with the same resume
-journal (``DIR/.<task>__<tracker>.partial.jsonl``) and lock (:func:`doabench.runner.run_lock`),
+journal (``DIR/.<task>__<tracker>.partial.jsonl``) and lock (:func:`doabench.runner.journal.run_lock`),
 so a sweep killed at any moment continues, when run again, with the finished runs skipped (their
 results file is there and matches the settings), the interrupted ones resumed from their
 journals and the rest started. Locally the runs go one after another; with ``engine="ray"`` each

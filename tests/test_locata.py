@@ -335,7 +335,7 @@ def test_planar_arrays_are_detected_and_scored_against_folded_truth(tmp_path):
     import json
 
     from doabench.arrays import MicArray, load_array_file
-    from doabench.runner import scored_frames
+    from doabench.runner.summary import scored_frames
     from doabench.metrics import episode_metrics
 
     ring = [[0.05 * np.cos(a), 0.05 * np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)]

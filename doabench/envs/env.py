@@ -188,6 +188,13 @@ class DoaEnv(gymnasium.Env):
             raise gymnasium.error.ResetNeeded("call reset() before offline_episode()")
         return {**{k: self._feats[k] for k in self.features}, "vad": self._feats["vad"]}
 
+    @property
+    def current_episode(self) -> Episode:
+        """The :class:`~doabench.episode.Episode` that the last ``reset()`` loaded (audio, array, metadata)."""
+        if self._episode_index is None:
+            raise gymnasium.error.ResetNeeded("call reset() before current_episode")
+        return self._episode
+
     def episode_truth(self) -> dict[str, np.ndarray]:
         """Truth of the current episode; the runner reads it only after the tracker has finished."""
         return self._truth

@@ -1,0 +1,14 @@
+"""Evaluation: run a tracker on a task and score it (what ``doabench run`` does).
+
+* :mod:`doabench.runner.loop`: the episode loop (:func:`run_task`, :func:`track_frames`), the
+  checks of a tracker's outputs;
+* :mod:`doabench.runner.journal`: the resume journal (``.partial.jsonl``) and the run lock;
+* :mod:`doabench.runner.summary`: the results dictionary (schema ``doabench.results/1``).
+"""
+from doabench.runner.journal import run_lock
+from doabench.runner.loop import check_direction, check_directions, check_trained, guarded, run_task, track_frames
+
+_guarded = guarded  # the name doabench/cli/track.py imports
+
+__all__ = ["check_direction", "check_directions", "check_trained", "guarded", "run_lock", "run_task",
+           "track_frames"]

@@ -1,0 +1,223 @@
+"""The evaluation loop: a tracker over a task's episodes, scored (what ``doabench run`` does).
+
+Per episode the loop resets the environment, resets the tracker with the array, then either
+steps frame by frame (causal trackers) or hands the whole episode over (offline trackers):
+:func:`track_frames`, which ``doabench track`` can share. Every direction the tracker returns is
+checked (shape (3,), finite, non-zero) before it reaches the environment. Finished episodes are
+journalled (:mod:`doabench.runner.journal`), so an interrupted run continues where it stopped
+when run again with the same settings; :mod:`doabench.runner.summary` assembles the results.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from doabench.envs.env import DoaEnv
+from doabench.envs.registry import get_task_spec
+from doabench.errors import ConfigError, DoabenchError, TrackerError
+from doabench.geometry import normalize
+from doabench.metrics import azimuth_errors_deg, frame_errors_deg
+from doabench.results.files import to_json
+from doabench.results.provenance import environment
+from doabench.runner.journal import append_record, config_hash, load_journal, run_lock
+from doabench.runner.summary import build_results, episode_row, scored_frames
+from doabench.trackers.base import Tracker
+from doabench.trackers.registry import make_tracker
+
+
+def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
+    """A tracker's output as a unit vector, or a TrackerError naming the tracker."""
+    try:
+        a = np.asarray(d, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TrackerError(f"tracker {tracker.name!r} returned {type(d).__name__} at frame {frame}, "
+                           "not a direction vector") from None
+    if a.shape != (3,):
+        raise TrackerError(f"tracker {tracker.name!r} returned shape {a.shape} at frame {frame}; expected (3,)")
+    if not np.all(np.isfinite(a)):
+        raise TrackerError(f"tracker {tracker.name!r} returned a non-finite direction {a} at frame {frame}")
+    if not np.any(a):
+        raise TrackerError(f"tracker {tracker.name!r} returned a zero vector at frame {frame}")
+    return normalize(a)  # scaled by its largest component first: [1e200, 0, 0] is the x axis, not 0
+
+
+def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
+    """The offline path's ``(T, 3)`` output, checked like :func:`check_direction`."""
+    a = np.asarray(d, dtype=np.float64)
+    if a.shape != (n_frames, 3):
+        raise TrackerError(f"tracker {tracker.name!r} returned shape {a.shape}; expected ({n_frames}, 3)")
+    bad = ~np.all(np.isfinite(a), axis=1) | ~np.any(a, axis=1)
+    if bad.any():
+        raise TrackerError(f"tracker {tracker.name!r} returned a non-finite or zero direction at frame "
+                           f"{int(np.argmax(bad))}")
+    return normalize(a)
+
+
+def guarded(tracker: Tracker, what: str, fn: Callable, *args: Any) -> Any:
+    """Call a tracker method; an exception it raises becomes a one-line TrackerError naming it."""
+    try:
+        return fn(*args)
+    except DoabenchError:
+        raise
+    except Exception as exc:
+        from doabench.trackers.registry import one_line
+
+        raise TrackerError(f"tracker {tracker.name!r} raised in {what}: {one_line(exc)}") from None
+
+
+def check_trained(tracker: Tracker, keyword: bool = False) -> None:
+    """Refuse to run a learned tracker that has no trained weights, unless it was asked for on
+    purpose (``weights=random``: the tracker's ``allow_untrained``). Trackers without a ``trained``
+    attribute (the classical ones) always pass. ``keyword``: word the hint for Python callers."""
+    if getattr(tracker, "trained", True) is not False or getattr(tracker, "allow_untrained", False):
+        return
+    res = getattr(tracker, "resolution", None)
+    what = f" for {res[0]}x{res[1]} maps" if getattr(tracker, "uses_resolution", False) and res else ""
+    if keyword:
+        hint = "pass tracker_options={'weights': FILE}, or {'weights': 'random'} to run the untrained model on purpose"
+    else:
+        hint = "pass --tracker-opt weights=FILE, or --tracker-opt weights=random to run the untrained model on purpose"
+    raise ConfigError(f"tracker {tracker.name!r} has no trained weights{what}; {hint}")
+
+
+def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays: str = "nearest",
+                 **env_options: Any) -> DoaEnv:
+    """The environment configured with the features, resolution and frames a tracker needs."""
+    spec = get_task_spec(task)
+    frame_spec = tracker.frame_spec
+    if frame_spec.fs != spec.frames.fs:
+        raise ConfigError(f"tracker {tracker.name!r} needs {frame_spec.fs} Hz audio; task {spec.id!r} is "
+                          f"{spec.frames.fs} Hz")
+    return DoaEnv(spec, features=tuple(tracker.features), resolution=tracker.resolution or (16, 32),
+                  delays=delays, frame_spec=frame_spec, device=device, **env_options)
+
+
+def track_frames(tracker: Tracker, n_frames: int, first: Any, advance: Callable[[int, np.ndarray], Any],
+                 offline: Callable[[], dict], where: str = "") -> np.ndarray:
+    """A reset tracker's ``(n_frames, 3)`` checked unit directions.
+
+    Causal trackers: ``step(obs)`` per frame, starting from observation ``first``;
+    ``advance(t, direction)`` is called with each frame's checked direction and returns the next
+    observation. Offline trackers: ``track(offline())``. ``where`` ends the error messages
+    (``" of episode 3"``).
+    """
+    if not tracker.causal:
+        return check_directions(tracker, guarded(tracker, f"track(){where}", tracker.track, offline()), n_frames)
+    estimates = np.zeros((n_frames, 3))
+    obs = first
+    for t in range(n_frames):
+        estimates[t] = check_direction(tracker, guarded(tracker, f"step() at frame {t}{where}", tracker.step, obs), t)
+        obs = advance(t, estimates[t])
+    return estimates
+
+
+def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
+    """One episode: returns estimates, truth, vad, times and timings."""
+    obs, info = env.reset(options={"episode": index})
+    n = info["n_frames"]
+    episode = env.current_episode
+    array = episode.array or env.array
+    guarded(tracker, f"reset() of episode {index}",
+            lambda: tracker.reset(array, frame_spec=env.frame_spec, task=env.spec_task.id,
+                                  metadata=episode.metadata))
+    start = time.perf_counter()
+    estimates = track_frames(tracker, n, obs, lambda t, d: env.step(d.astype(np.float32))[0], env.offline_episode,
+                             where=f" of episode {index}")
+    tracker_s = time.perf_counter() - start
+    truth = env.episode_truth()
+    valid = np.asarray(truth.get("valid", np.ones(n, bool)), dtype=bool)
+    return {"estimates": estimates, "truth": truth["directions"], "vad": truth["vad"], "times": truth["times"],
+            "valid": valid, "planar": bool(array.planar),
+            "tracker_s": tracker_s, "audio_s": episode.n_samples / episode.fs, "metadata": episode.metadata}
+
+
+def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,
+             device: str | None = None, delays: str = "nearest", tracker_options: dict | None = None,
+             partial_path: str | Path | None = None, progress: bool | Callable = True,
+             keep_frames: bool = True, lock: bool = True, **env_options: Any) -> dict[str, Any]:
+    """Run ``tracker`` on ``task`` and return the results dictionary (see docs/results-format).
+
+    ``episodes``: a count (the first N) or explicit indices; default all of the task's episodes.
+    ``partial_path``: a JSON-lines file of finished episodes for resuming; removed by the caller
+    once the final results are written. It is locked for the run (``lock=False``: the caller holds
+    :func:`run_lock` already). ``wall_time_s`` adds up every invocation that contributed episodes.
+    """
+    if partial_path and lock:
+        with run_lock(partial_path):
+            return run_task(tracker, task, episodes, device, delays, tracker_options, partial_path, progress,
+                            keep_frames, lock=False, **env_options)
+    if isinstance(tracker, str):
+        tracker_text = tracker
+        tracker = make_tracker(tracker, **(tracker_options or {}))
+    else:
+        tracker_text = tracker.name
+    check_trained(tracker, keyword=True)
+    spec = get_task_spec(task)
+    provenance = environment(device)  # taken before the work: the code that runs is the code recorded
+    wall_start = time.perf_counter()
+    env = make_env_for(tracker, task, device=device, delays=delays, **env_options)
+    n_total = env.n_episodes
+    if episodes is None:
+        indices = list(range(n_total))
+    elif isinstance(episodes, int):
+        if episodes < 1:
+            raise ConfigError(f"--episodes must be at least 1, got {episodes}")
+        indices = list(range(min(episodes, n_total)))
+    else:
+        indices = [int(i) for i in episodes]
+    config = {"task": spec.id, "task_version": spec.version, "tracker": tracker_text,
+              "options": tracker_options or {}, "delays": delays, "indices": indices,
+              "weights": tracker.weights_hash(), "env": {k: str(v) for k, v in env_options.items()}}
+    done = load_journal(partial_path, config_hash(config))
+    try:
+        records = _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep_frames, wall_start)
+    except BaseException:
+        if partial_path and not done:  # nothing finished: leave no journal behind
+            Path(partial_path).unlink(missing_ok=True)
+        raise
+    # This invocation's wall time plus that of the episodes earlier invocations journalled.
+    earlier = sum(float(r.get("wall_s", 0.0)) for r in records if not r.pop("_new", False))
+    wall_s = earlier + (time.perf_counter() - wall_start)
+    return build_results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays)
+
+
+def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep_frames, wall_start) -> list[dict]:
+    """Run the episodes not yet in ``done``, journalling each; returns the records in index order."""
+    last = wall_start
+    bar = None
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(indices), initial=len(done), desc=f"{tracker.name} on {spec.id}", unit="episode")
+    for index in indices:
+        if index in done:
+            continue
+        ep = run_episode(env, tracker, index)
+        est, truth, vad = scored_frames(ep)
+        record = {"row": episode_row(index, ep), "errors": frame_errors_deg(est, truth),
+                  "az_errors": azimuth_errors_deg(est, truth), "vad": vad, "planar": ep["planar"]}
+        if keep_frames:
+            record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"],
+                                "vad": ep["vad"]}
+            if not ep["valid"].all():
+                record["frames"]["valid"] = ep["valid"]
+        now = time.perf_counter()
+        record["wall_s"] = now - last  # this episode's share of the wall time, summed over resumes
+        last = now
+        record = json.loads(to_json(record, indent=None))
+        if partial_path:
+            append_record(partial_path, record)
+        record["_new"] = True
+        done[index] = record
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(rmsae=f"{record['row']['rmsae_all']:.1f}")
+        elif callable(progress):
+            progress(index, record)
+    if bar is not None:
+        bar.close()
+    return [done[i] for i in indices]
