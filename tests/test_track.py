@@ -91,6 +91,7 @@ def test_track_bad_outputs_are_refused_before_the_work(scene_dir, tmp_path, caps
     import doabench.cli.track as track_cli
 
     monkeypatch.setattr(track_cli, "track_recording", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr(track_cli, "track_stream", lambda *a, **k: calls.append(1))
     cases = [["--out", str(folder)], ["--out", str(tmp_path / "afile" / "x.csv")],
              ["--out", str(tmp_path / "o.csv"), "--plot", str(tmp_path / "x.xyz")]]
     for extra in cases:
@@ -145,3 +146,139 @@ def test_track_scores_against_the_truth_that_simulate_writes(scene_dir, tmp_path
     err = capsys.readouterr().err.strip()
     assert "frames but the tracker produced" in err and "\n" not in err
     assert not (tmp_path / "x.csv").exists()
+
+
+# -- long recordings stream: block by block, same bytes as the offline computation --------------
+
+def _bursty_recording(path, seconds: float, fs: int = 16000, channels: int = 12, seed: int = 3) -> None:
+    """Noise with loud bursts (voice-active for the WebRTC VAD) and quiet gaps, written in blocks."""
+    rng = np.random.default_rng(seed)
+    total, block = int(seconds * fs), 7 * fs
+    with sf.SoundFile(str(path), "w", fs, channels, subtype="PCM_16") as f:
+        for start in range(0, total, block):
+            n = min(block, total - start)
+            t = (start + np.arange(n)) / fs
+            gain = np.where((t % 3) < 1.7, 0.25, 0.003)[:, None]
+            f.write((rng.standard_normal((n, channels)) * gain).clip(-1, 1).astype(np.float32))
+
+
+def _offline_track_csv(rec, name: str, opts=(), resample: bool = False, vad: str = "webrtc") -> str:
+    """What `doabench track` wrote before it streamed: the whole recording in memory."""
+    from doabench.arrays import get_array
+    from doabench.cli.track import recording_vad, track_recording, track_table
+    from doabench.recording import load_recording
+    from doabench.trackers.registry import make_tracker, parse_options
+
+    tracker = make_tracker(name, **parse_options(list(opts)))
+    array = get_array("nao")
+    audio, _ = load_recording(rec, array, tracker.frame_spec.fs, resample, min_samples=tracker.frame_spec.window)
+    if not np.any(audio):
+        sample_vad = np.zeros(audio.shape[-1], bool)
+    else:
+        sample_vad = recording_vad(audio, tracker.frame_spec.fs) if vad == "webrtc" else None
+    out = track_recording(tracker, array, audio, sample_vad)
+    return track_table(out).to_csv(index=False, float_format="%.4f")
+
+
+def _offline_features_npy(rec, kind: str, resample: bool = False, extra=()) -> bytes:
+    import io
+
+    from doabench.arrays import get_array
+    from doabench.features import FeatureExtractor
+    from doabench.framing import FrameSpec
+    from doabench.recording import load_recording
+
+    array, spec = get_array("nao"), FrameSpec()
+    audio, _ = load_recording(rec, array, spec.fs, resample, min_samples=spec.window)
+    ex = FeatureExtractor(array, kinds=(kind,), resolution=(16, 32), mode="nearest", frame_spec=spec,
+                          spectrogram_frame_spec=spec)
+    buf = io.BytesIO()
+    np.save(buf, ex(audio)[kind].numpy().astype(np.float32, copy=False))
+    return buf.getvalue()
+
+
+@pytest.fixture(scope="module")
+def long_recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("long") / "long.wav"
+    _bursty_recording(path, 150)  # 2.5 minutes, 12 channels
+    return path
+
+
+def test_streamed_track_and_features_equal_the_offline_bytes(long_recording, tmp_path, monkeypatch, capsys):
+    """A multi-minute recording, read in blocks (also an odd block size, not a multiple of the hop or
+    of the VAD's 10 ms): the CSV and the .npy are byte-identical to the whole-recording computation."""
+    import io
+
+    import doabench.recording as recording
+
+    expected_csv = _offline_track_csv(long_recording, "srp-max")
+    expected_npy = _offline_features_npy(long_recording, "srp")
+    assert 0 < pd.read_csv(io.StringIO(expected_csv)).vad.mean() < 1  # both kinds of frame
+    for block in (recording.BLOCK_SAMPLES, 50_001):
+        monkeypatch.setattr(recording, "BLOCK_SAMPLES", block)
+        csv, npy = tmp_path / f"t{block}.csv", tmp_path / f"f{block}.npy"
+        assert main(["track", str(long_recording), "--out", str(csv)]) == 0
+        assert csv.read_text() == expected_csv, block
+        assert main(["features", str(long_recording), "--kind", "srp", "--out", str(npy)]) == 0
+        # SRP maps: torch reduces a block of frames in another order than the whole recording
+        # (up to 2e-7 here); same header, shape and values within float32 rounding.
+        got, want = npy.read_bytes(), expected_npy
+        assert got[:128] == want[:128] and len(got) == len(want)
+        np.testing.assert_allclose(np.load(npy), np.load(io.BytesIO(want)), atol=1e-6, rtol=0)
+        assert np.load(npy).shape == (780, 16, 32)
+        npy = tmp_path / f"g{block}.npy"  # GCC-PHAT: exactly the same bytes
+        assert main(["features", str(long_recording), "--kind", "gcc", "--out", str(npy)]) == 0
+        assert npy.read_bytes() == _offline_features_npy(long_recording, "gcc"), block
+
+
+def test_streamed_track_other_trackers_vad_and_resampling_equal_offline(tmp_path, monkeypatch):
+    """Raw-audio (music), non-causal (seldnet) and --resample (48 kHz input, streamed polyphase
+    resampling) paths, and a mostly quiet recording whose VAD falls back to a milder mode."""
+    import doabench.recording as recording
+
+    monkeypatch.setattr(recording, "BLOCK_SAMPLES", 40_000)
+    rec = tmp_path / "r.wav"
+    _bursty_recording(rec, 20)
+    rec48 = tmp_path / "r48.wav"
+    _bursty_recording(rec48, 12, fs=48000)
+    cases = [(rec, "music", [], []), (rec, "seldnet", ["weights=random"], []), (rec, "srp-max", [], ["--vad", "none"]),
+             (rec48, "srp-max", [], ["--resample"])]
+    for path, name, opts, extra in cases:
+        csv = tmp_path / "o.csv"
+        argv = ["track", str(path), "--tracker", name, "--out", str(csv), *extra]
+        for o in opts:
+            argv += ["--tracker-opt", o]
+        assert main(argv) == 0, name
+        want = _offline_track_csv(path, name, opts, resample="--resample" in extra,
+                                  vad="none" if "none" in extra else "webrtc")
+        assert csv.read_text() == want, (name, extra)
+    npy = tmp_path / "s.npy"
+    assert main(["features", str(rec48), "--kind", "spectrogram", "--resample", "--out", str(npy)]) == 0
+    assert npy.read_bytes() == _offline_features_npy(rec48, "spectrogram", resample=True)
+
+
+def test_streamed_vad_mode_fallback_and_resampler_equal_offline(tmp_path):
+    from doabench.acoustics.vad import webrtc_vad
+    from doabench.recording import Recording, StreamingWebrtcVad, read_audio, resample
+
+    rng = np.random.default_rng(0)
+    fs = 16000
+    x = rng.standard_normal(fs * 6 + 77).astype(np.float32) * 0.002
+    x[fs:fs + 4000] *= 200  # mostly quiet: mode 3 keeps too little, the fallback decides
+    audio = np.stack([x, 0.5 * x])
+    ref, ref_mode = webrtc_vad(audio.mean(0) / float(np.max(np.abs(audio.mean(0)))), fs)
+    for block in (160, 999, 50_000):
+        v = StreamingWebrtcVad(fs, float(np.max(np.abs(audio.mean(0)))))
+        for s in range(0, audio.shape[1], block):
+            v.push(audio[:, s:s + block])
+        d, mode = v.finish()
+        assert mode == ref_mode and np.array_equal(v.sample_vad(d, 0, audio.shape[1]), ref), block
+    for sr in (44100, 22050, 8000):
+        p = tmp_path / f"{sr}.wav"
+        sf.write(p, rng.standard_normal((int(sr * 2.1) + 5, 2)).astype(np.float32) * 0.1, sr, subtype="FLOAT")
+        a, _ = read_audio(p)
+        want = resample(a, sr, fs)
+        for block in (1000, 16_384):
+            r = Recording(p, 2, sr, a.shape[1], fs)
+            assert r.samples == want.shape[1]
+            assert np.array_equal(np.concatenate(list(r.blocks(block)), axis=1), want), (sr, block)

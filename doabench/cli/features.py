@@ -40,10 +40,11 @@ def read_audio_rate(path: Path) -> int:
     return int(sf.info(str(path)).samplerate)
 
 
-def _sidecar(args, extractor, result: np.ndarray, sr: int, resampled: bool) -> dict:
+def _sidecar(args, extractor, result, sr: int, resampled: bool) -> dict:
     from doabench._version import __version__
     from doabench.geometry import grid_angles
 
+    # ``result``: the feature array, or anything with its ``shape`` and ``dtype`` (the streamed file's)
     spec: FrameSpec = extractor.spectrogram_frame_spec if args.kind == "spectrogram" else extractor.frame_spec
     meta = {
         "kind": args.kind,
@@ -87,11 +88,17 @@ def _sidecar(args, extractor, result: np.ndarray, sr: int, resampled: bool) -> d
     return meta
 
 
+class _Shape:
+    """What :func:`_sidecar` reads of a feature array that was streamed to disk."""
+
+    def __init__(self, shape: tuple[int, ...], dtype: np.dtype) -> None:
+        self.shape, self.dtype = shape, dtype
+
+
 def run(args) -> int:
     import torch
 
     from doabench.arrays import get_array
-    from doabench.features import FeatureExtractor
     from doabench.geometry import parse_resolution
 
     out = Path(args.out)
@@ -109,12 +116,14 @@ def run(args) -> int:
     resolution = parse_resolution(args.resolution)
 
     path = Path(args.recording)
-    from doabench.recording import load_recording
+    from doabench.features.streaming import StreamingFeatureExtractor
+    from doabench.recording import BLOCK_SAMPLES, open_recording
 
-    audio, resampled = load_recording(path, array, args.fs, args.resample, min_samples=spec.window)
-    sr = read_audio_rate(path) if resampled else args.fs
-
-    extractor = FeatureExtractor(
+    # Read block by block and write the .npy as the frames complete: neither the recording nor the
+    # features are held whole, so memory does not grow with the recording's length.
+    rec = open_recording(path, array, args.fs, args.resample, min_samples=spec.window)
+    sr, resampled = rec.sr, rec.resampled
+    stream = StreamingFeatureExtractor(
         array,
         kinds=(args.kind,),
         resolution=resolution,
@@ -122,12 +131,22 @@ def run(args) -> int:
         frame_spec=spec,
         spectrogram_frame_spec=spec,
     )
-    with torch.inference_mode():
-        result = extractor(audio)[args.kind].numpy().astype(np.float32, copy=False)
-    meta = _sidecar(args, extractor, result, sr, resampled)
+    extractor = stream.extractor
+    shape = (spec.n_frames(rec.samples), *extractor.feature_shapes()[args.kind])
+    result = _Shape(shape, np.dtype(np.float32))
+    written = 0
     with atomic_path(out) as tmp:
-        with open(tmp, "wb") as f:  # a file object: np.save would append .npy to a bare path
-            np.save(f, result)
+        with open(tmp, "wb") as f:  # the header np.save writes, then the frames as they complete
+            np.lib.format.write_array_header_1_0(f, np.lib.format.header_data_from_array_1_0(
+                np.empty((0,), np.float32)) | {"shape": shape})
+            with torch.inference_mode():
+                for x in rec.blocks(BLOCK_SAMPLES):
+                    part = stream.push(torch.from_numpy(x))[args.kind].numpy().astype(np.float32, copy=False)
+                    f.write(np.ascontiguousarray(part).tobytes())
+                    written += part.shape[0]
+        if written != shape[0]:  # the frame count promised in the header
+            raise RuntimeError(f"streamed {written} frames, expected {shape[0]}")
+    meta = _sidecar(args, extractor, result, sr, resampled)
     write_text(sidecar, json.dumps(meta) + "\n")
     print(f"wrote {out} {tuple(result.shape)} and {sidecar}")
     return 0

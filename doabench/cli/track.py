@@ -63,6 +63,111 @@ def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | 
     return {"times": spec.times(n), "directions": directions, "vad": feats["vad"].astype(bool)}
 
 
+def track_stream(tracker, array, chunks, delays: str = "nearest", device: str | None = None) -> dict[str, np.ndarray]:
+    """:func:`track_recording` on a recording given as chunks, in memory bounded by the chunk size.
+
+    ``chunks``: iterable of ``(audio (n_mics, n), sample_vad (n,) | None)`` in order. Features
+    come from the streaming extractor (equal to the offline one); a causal tracker steps through
+    each chunk's frames as they complete, a non-causal one gets the whole feature sequence
+    (frames x features, not samples) at the end. Same result as :func:`track_recording` on the
+    concatenated chunks.
+    """
+    import torch
+
+    from doabench.features.observations import extractor_kinds
+    from doabench.features.streaming import StreamingFeatureExtractor, _FrameStream
+    from doabench.framing import frame_signal
+    from doabench.runner import _guarded, check_direction, check_directions
+
+    spec = tracker.frame_spec
+    extractor = StreamingFeatureExtractor(array, kinds=extractor_kinds(tracker.features),
+                                          resolution=tracker.resolution or (16, 32), mode=delays, frame_spec=spec,
+                                          spectrogram_frame_spec=spec)
+    framer = _FrameStream(spec) if "audio" in tracker.features else None
+    _guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
+    directions: list[np.ndarray] = []
+    parts: dict[str, list[np.ndarray]] = {}
+    vads: list[np.ndarray] = []
+    t = 0
+    with torch.inference_mode():
+        for audio, sample_vad in chunks:
+            x = torch.as_tensor(np.ascontiguousarray(audio), dtype=torch.float32, device=device)
+            vad = None if sample_vad is None else torch.as_tensor(np.asarray(sample_vad, bool), device=device)
+            feats = {k: v.detach().cpu().numpy() for k, v in extractor.push(x, vad).items()}
+            if framer is not None:
+                a = torch.from_numpy(np.ascontiguousarray(audio, dtype=np.float32))[None]
+                seg = framer.push(a, torch.ones((1, a.shape[-1]), dtype=torch.bool))
+                feats["audio"] = (np.zeros((0, a.shape[1], spec.window), np.float32) if seg is None else
+                                  np.moveaxis(frame_signal(seg[0][0].numpy(), spec.window, spec.hop), 0, 1))
+            feats["vad"] = np.asarray(feats["vad"]).astype(np.int64)
+            vads.append(feats["vad"])
+            if tracker.causal:
+                for i in range(len(feats["vad"])):
+                    directions.append(check_direction(tracker, _guarded(
+                        tracker, f"step() at frame {t}", tracker.step,
+                        {**{k: v[i] for k, v in feats.items()}, "vad": int(feats["vad"][i])}), t))
+                    t += 1
+            else:
+                for k, v in feats.items():
+                    parts.setdefault(k, []).append(v)
+    vad_all = np.concatenate(vads) if vads else np.zeros(0, np.int64)
+    n = len(vad_all)
+    if tracker.causal:
+        out = np.stack(directions) if n else np.zeros((0, 3))
+    else:
+        feats = {k: np.concatenate(v) for k, v in parts.items()}
+        out = check_directions(tracker, _guarded(tracker, "track()", tracker.track, feats), n)
+    return {"times": spec.times(n), "directions": out, "vad": vad_all.astype(bool)}
+
+
+def recording_chunks(rec, vad: str, block: int | None = None):
+    """``(chunks, silent)`` for :func:`track_stream` from a :class:`~doabench.recording.Recording`.
+
+    The recording is read block by block (up to three times: silence and peak, the WebRTC VAD,
+    the features), never held whole; the chunks equal ``(audio, sample VAD)`` as ``main``
+    computed them offline (digital silence: no sample active whatever ``vad`` says).
+    """
+    from doabench.recording import BLOCK_SAMPLES, StreamingWebrtcVad
+
+    block = block or BLOCK_SAMPLES
+    silent, peak = True, 0.0
+    for x in rec.blocks(block):
+        silent = silent and not np.any(x)
+        if vad == "webrtc":
+            peak = max(peak, float(np.max(np.abs(x.mean(0)))))
+    decisions = stream = None
+    if not silent and vad == "webrtc":
+        stream = StreamingWebrtcVad(rec.fs, peak or 1.0)
+        for x in rec.blocks(block):
+            stream.push(x)
+        decisions, _ = stream.finish()
+
+    def chunks():
+        start = 0
+        for x in rec.blocks(block):
+            n = x.shape[-1]
+            if silent:
+                v = np.zeros(n, bool)
+            else:
+                v = None if stream is None else stream.sample_vad(decisions, start, n)
+            start += n
+            yield x, v
+
+    return chunks(), silent
+
+
+def track_table(out: dict[str, np.ndarray]):
+    """The CSV's table (time_s, elevation_deg, azimuth_deg, x, y, z, vad) of a tracking result."""
+    import pandas as pd
+
+    from doabench.geometry import unit_to_angles
+
+    el, az = unit_to_angles(out["directions"])
+    return pd.DataFrame({"time_s": out["times"], "elevation_deg": np.degrees(el), "azimuth_deg": np.degrees(az),
+                         "x": out["directions"][:, 0], "y": out["directions"][:, 1], "z": out["directions"][:, 2],
+                         "vad": np.asarray(out["vad"], np.int8)})
+
+
 def check_plot_path(path: str | Path) -> None:
     """Refuse a ``--plot`` file whose format matplotlib cannot write (checked before any work)."""
     from matplotlib.backend_bases import FigureCanvasBase
@@ -147,11 +252,8 @@ def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad:
 
 
 def main(args: argparse.Namespace) -> int:
-    import pandas as pd
-
     from doabench.arrays import get_array
-    from doabench.geometry import unit_to_angles
-    from doabench.recording import load_recording
+    from doabench.recording import open_recording
     from doabench.results.files import atomic_path
     from doabench.trackers.registry import make_tracker, parse_options
 
@@ -172,21 +274,15 @@ def main(args: argparse.Namespace) -> int:
     check_trained(tracker)  # an untrained learned model is refused unless weights=random
     array = get_array(args.array)
     spec = tracker.frame_spec
-    audio, _ = load_recording(args.recording, array, spec.fs, args.resample, min_samples=spec.window)
-    silent = not np.any(audio)
-    if silent:  # no frame of digital silence is voice-active, whatever --vad says
-        sample_vad = np.zeros(audio.shape[-1], bool)
-    else:
-        sample_vad = recording_vad(audio, spec.fs) if args.vad == "webrtc" else None
-    out = track_recording(tracker, array, audio, sample_vad, args.delays, args.device)
+    # Read block by block (never the whole recording): memory does not grow with its length.
+    rec = open_recording(args.recording, array, spec.fs, args.resample, min_samples=spec.window)
+    chunks, silent = recording_chunks(rec, args.vad)
+    out = track_stream(tracker, array, chunks, args.delays, args.device)
     if silent or not out["vad"].any():
         why = "the recording is digital silence (all samples zero)" if silent else "the VAD found no speech"
         print(f"doabench track: warning: no frame was voice-active ({why}); the directions of silent frames "
               "carry no information (see the vad column)", file=sys.stderr)
-    el, az = unit_to_angles(out["directions"])
-    table = pd.DataFrame({"time_s": out["times"], "elevation_deg": np.degrees(el), "azimuth_deg": np.degrees(az),
-                          "x": out["directions"][:, 0], "y": out["directions"][:, 1], "z": out["directions"][:, 2],
-                          "vad": np.asarray(out["vad"], np.int8)})
+    table = track_table(out)
     truth = None
     if args.truth:
         from doabench.metrics import episode_metrics, frame_errors_deg
