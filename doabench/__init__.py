@@ -8,20 +8,33 @@ Public API::
     env = gymnasium.make("doabench/sim-demo-v1", features=("srp",), resolution=(16, 32))
     doabench.run(tracker="srp-max", task="sim-demo")                   # scored results dict
     doabench.srp_maps(audio, "nao")    # SRP-PHAT maps + grid angles + argmax directions in one call
+
+What users implement or receive: ``Tracker`` (subclass it) and the ``ResetContext`` its
+``reset(array, **context)`` gets; ``TaskSpec`` (a task's parsed TOML); ``EpisodeSource`` (the
+protocol a task kind's episode source implements, registered with ``register_task_kind``);
+``TrainableTracker`` (what ``doabench train`` needs from a learned tracker; it needs torch, which
+is imported only when the name is first used).
 """
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
 
 from doabench._version import __version__
 
 from doabench.arrays import MicArray, get_array, load_array_file
 from doabench.envs.registry import available_tasks, get_task_spec, register_task
-from doabench.envs.sources import register_task_kind
+from doabench.envs.sources import EpisodeSource, register_task_kind
+from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import DoabenchError
 from doabench.framing import FrameSpec
 from doabench.geometry import parse_resolution
 from doabench.results.provenance import sha256_file
 from doabench.trackers import Tracker, available_trackers, make_tracker, register_tracker
+from doabench.trackers.base import ResetContext
+
+if TYPE_CHECKING:
+    from doabench.training.protocol import TrainableTracker
 
 
 def _one_torch_thread_after_fork() -> None:
@@ -65,10 +78,25 @@ def run(tracker, task, **kwargs):
     return run_task(tracker, task, **kwargs)
 
 
+def __getattr__(name: str) -> Any:
+    """``TrainableTracker`` on first use: its module imports torch, ``import doabench`` does not."""
+    if name == "TrainableTracker":
+        from doabench.training.protocol import TrainableTracker
+
+        globals()[name] = TrainableTracker
+        return TrainableTracker
+    raise AttributeError(f"module 'doabench' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | {"TrainableTracker"})
+
+
 available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
-    "DoabenchError", "Episode", "FrameSpec", "MicArray", "Tracker", "available_tasks", "available_trackers",
-    "get_array", "get_task_spec", "load_array_file", "make_tracker", "register_task", "register_task_kind",
-    "parse_resolution", "register_tracker", "run", "sha256_file", "srp_maps",
+    "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ResetContext", "TaskSpec", "Tracker",
+    "TrainableTracker", "available_tasks", "available_trackers", "get_array", "get_task_spec", "load_array_file",
+    "make_tracker", "register_task", "register_task_kind", "parse_resolution", "register_tracker", "run",
+    "sha256_file", "srp_maps",
 ]

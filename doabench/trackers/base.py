@@ -12,7 +12,7 @@ A tracker turns per-frame features into one direction estimate per frame. Subcla
         features = ("srp",)          # observation keys it reads
         causal = True
 
-        def reset(self, array, frame_spec=None, resolution=None):
+        def reset(self, array, **context):   # context: see ResetContext
             self.grid = ...
 
         def step(self, observation):
@@ -34,12 +34,22 @@ keyword arguments of the constructor: the part after the colon is passed as ``sp
 """
 from __future__ import annotations
 
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, ClassVar, Mapping, Sequence, TypedDict
 
 import numpy as np
 
 from doabench.arrays import MicArray
 from doabench.framing import FrameSpec
+
+
+class ResetContext(TypedDict, total=False):
+    """The keyword arguments of :meth:`Tracker.reset` besides the array. Every key is optional:
+    ``doabench run`` passes all three, ``doabench track`` (a user's recording) only ``frame_spec``.
+    A tracker should accept and ignore keys it does not know (``**context``)."""
+
+    frame_spec: FrameSpec    # frames of the observations that follow (window, hop, fs)
+    task: str                # id of the task the episode comes from
+    metadata: Mapping[str, Any]  # the episode's metadata (scene, seed, recording, ...)
 
 
 class Tracker:
@@ -99,7 +109,10 @@ class Tracker:
 
     # -- the work -------------------------------------------------------------------------------
     def reset(self, array: MicArray, **context: Any) -> None:
-        """Start a new episode recorded with ``array``. Called before the first step."""
+        """Start a new episode recorded with ``array``. Called before the first step.
+
+        ``context``: the keys of :class:`ResetContext` that the caller knows (``frame_spec``,
+        ``task``, ``metadata``), each optional."""
 
     def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         """One frame in, one direction ``(3,)`` out (causal trackers)."""
