@@ -144,8 +144,11 @@ def run(args) -> int:
                     part = stream.push(torch.from_numpy(x))[args.kind].numpy().astype(np.float32, copy=False)
                     f.write(np.ascontiguousarray(part).tobytes())
                     written += part.shape[0]
-        if written != shape[0]:  # the frame count promised in the header
-            raise RuntimeError(f"streamed {written} frames, expected {shape[0]}")
+        if written != shape[0]:  # the frame count promised in the .npy header (from the file's header)
+            from doabench.errors import InputError
+
+            raise InputError(f"{path} holds fewer samples than its header says ({written} frames of "
+                             f"{shape[0]} read): is it truncated?")
     meta = _sidecar(args, extractor, result, sr, resampled)
     write_text(sidecar, json.dumps(meta) + "\n")
     print(f"wrote {out} {tuple(result.shape)} and {sidecar}")
