@@ -178,7 +178,7 @@ def open_recording(path: str | Path, array: MicArray, fs: int, allow_resample: b
 class StreamingWebrtcVad:
     """``doabench track``'s recording VAD (WebRTC VAD of the channel mean over its peak), chunk by chunk.
 
-    Equals :func:`doabench.acoustics.vad.webrtc_vad` on the whole signal: the same 10 ms int16
+    Equals :func:`doabench.corpora.vad.webrtc_vad` on the whole signal: the same 10 ms int16
     frames go through one ``webrtcvad.Vad`` per mode in order (the VAD keeps state across
     frames), every mode at once, and the mode is chosen at :meth:`finish` by the same rule.
     Holds one bool per 10 ms frame and mode, not samples.
@@ -187,7 +187,7 @@ class StreamingWebrtcVad:
     def __init__(self, fs: int, peak: float) -> None:
         import webrtcvad
 
-        from doabench.acoustics.vad import DEFAULT_MODES, FRAME_MS, MIN_ACTIVE, WEBRTC_RATES
+        from doabench.corpora.vad import DEFAULT_MODES, FRAME_MS, MIN_ACTIVE, WEBRTC_RATES
         from doabench.errors import ConfigError
 
         if fs not in WEBRTC_RATES:

@@ -11,7 +11,7 @@ import soundfile as sf
 from doabench.acoustics.render import render_components, render_scene
 from doabench.acoustics.scenes import SceneDistribution, sample_scene
 from doabench.acoustics.simulators import segment_bounds as simulator_segments
-from doabench.acoustics.speech import EmbeddedSpeechSource
+from doabench.corpora.speech import EmbeddedSpeechSource
 from doabench.acoustics.trajectories import segment_bounds
 from doabench.cli.main import main as cli
 from doabench.errors import ConfigError

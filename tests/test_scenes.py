@@ -9,7 +9,7 @@ import pytest
 
 from doabench.acoustics.room import Room
 from doabench.acoustics.scenes import DirectionalNoise, Scene, SceneDistribution, sample_scene
-from doabench.acoustics.speech import EmbeddedSpeechSource
+from doabench.corpora.speech import EmbeddedSpeechSource
 from doabench.acoustics.trajectories import (
     eq6_points,
     polyline_distance,
@@ -177,7 +177,7 @@ def test_scene_dicts_are_fresh_objects():
 def test_pauses_silence_the_talker_and_are_reproducible():
     from doabench.acoustics.render import render_scene
     from doabench.acoustics.scenes import SceneDistribution, sample_scene
-    from doabench.acoustics.speech import EmbeddedSpeechSource
+    from doabench.corpora.speech import EmbeddedSpeechSource
     from doabench.framing import frame_vad
 
     speech = EmbeddedSpeechSource()

@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from doabench.acoustics import vad as vad_mod
-from doabench.acoustics.download import DownloadError, download_librispeech
-from doabench.acoustics.speech import (
+from doabench.corpora import vad as vad_mod
+from doabench.corpora.download import DownloadError, download_librispeech
+from doabench.corpora.speech import (
     EmbeddedSpeechSource,
     LibriSpeechSource,
     SpeechSource,
     get_speech_source,
     resolve_librispeech,
 )
-from doabench.acoustics.vad import clean_with_vad, webrtc_vad
+from doabench.corpora.vad import clean_with_vad, webrtc_vad
 from doabench.errors import ConfigError, NotFoundError
 
 FS = 16000

@@ -258,7 +258,7 @@ def test_streamed_track_other_trackers_vad_and_resampling_equal_offline(tmp_path
 
 
 def test_streamed_vad_mode_fallback_and_resampler_equal_offline(tmp_path):
-    from doabench.acoustics.vad import webrtc_vad
+    from doabench.corpora.vad import webrtc_vad
     from doabench.recording import Recording, StreamingWebrtcVad, read_audio, resample
 
     rng = np.random.default_rng(0)

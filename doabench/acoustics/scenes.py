@@ -365,7 +365,7 @@ def sample_scene(
 ) -> Scene:
     """Draw the scene of ``seed`` from ``dist`` (a pure function of both).
 
-    ``speech_source``: a :class:`~doabench.acoustics.speech.SpeechSource` whose chunk ``info`` the
+    ``speech_source``: a :class:`~doabench.corpora.speech.SpeechSource` whose chunk ``info`` the
     scene records (None: geometry only, the scene cannot be rendered). ``array``: the microphone
     array (its positions are recorded in the scene).
     """

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from doabench.acoustics.speech import LIBRISPEECH_SUBSETS
+from doabench.corpora.speech import LIBRISPEECH_SUBSETS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _download(args: argparse.Namespace) -> int:
-    from doabench.acoustics.download import DEFAULT_BASE_URL, download_librispeech
+    from doabench.corpora.download import DEFAULT_BASE_URL, download_librispeech
 
     final = download_librispeech(args.subset, args.dest, base_url=args.base_url or DEFAULT_BASE_URL,
                                  keep_archive=args.keep_archive, force=args.force, progress=not args.quiet)

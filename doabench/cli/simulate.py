@@ -69,11 +69,11 @@ def _task_setup(task_id: str, librispeech: str | None):
     dist = getattr(spec, "scene_distribution", None) or SceneDistribution.from_dict(dict(spec.params.get("scene", {})))
     speech = dict(spec.params.get("speech", {}))
     if speech.get("corpus", "embedded") == "embedded":
-        from doabench.acoustics.speech import EmbeddedSpeechSource
+        from doabench.corpora.speech import EmbeddedSpeechSource
 
         source = EmbeddedSpeechSource()
     else:
-        from doabench.acoustics.speech import LibriSpeechSource
+        from doabench.corpora.speech import LibriSpeechSource
 
         source = LibriSpeechSource(librispeech, speech.get("subset"))
     return dist, source, spec.array
@@ -85,7 +85,7 @@ DEFAULT_SUBSETS = ("test-clean", "test-other")
 def default_subset(root: str) -> str | None:
     """The subset to use under a LibriSpeech ``root`` when none is given: the only one there, else
     test-clean, else test-other (the official root holds several); None leaves the error to the reader."""
-    from doabench.acoustics.speech import resolve_librispeech
+    from doabench.corpora.speech import resolve_librispeech
     from doabench.errors import DoabenchError
 
     try:
@@ -103,7 +103,7 @@ def default_subset(root: str) -> str | None:
 def build_distribution(args: argparse.Namespace):
     """The scene distribution, speech source and array the arguments ask for."""
     from doabench.acoustics.scenes import SceneDistribution
-    from doabench.acoustics.speech import LibriSpeechSource, get_speech_source
+    from doabench.corpora.speech import LibriSpeechSource, get_speech_source
 
     if args.task:
         dist, source, array = _task_setup(args.task, args.librispeech)

@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def recording_vad(audio: np.ndarray, fs: int) -> np.ndarray:
     """Per-sample VAD ``(samples,)`` of a multichannel recording from the WebRTC VAD of its channel mean."""
-    from doabench.acoustics.vad import webrtc_vad
+    from doabench.corpora.vad import webrtc_vad
 
     mono = audio.mean(0)
     peak = float(np.max(np.abs(mono))) or 1.0

@@ -74,7 +74,7 @@ def episode_seed(base_seed: int, *keys: int) -> int:
 
 def make_speech_source(speech: dict[str, Any], librispeech: str | None = None):
     """The speech source a task's ``[speech]`` section asks for."""
-    from doabench.acoustics import speech as speech_mod
+    from doabench.corpora import speech as speech_mod
 
     corpus = speech.get("corpus", "embedded")
     if corpus == "embedded":

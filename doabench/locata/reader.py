@@ -21,7 +21,7 @@ Timing rules (docs/locata.md explains them with the reasons):
    map reaches the network as it is, not zeroed.
 6. Voice activity, ``vad=``:
 
-   * ``webrtc`` (the paper's, the tasks' default): the WebRTC VAD (doabench.acoustics.vad) of the
+   * ``webrtc`` (the paper's, the tasks' default): the WebRTC VAD (doabench.corpora.vad) of the
      array audio (first microphone at ``fs``, peak-normalised); metadata ``vad_source`` =
      ``webrtcvad-array``;
    * ``corpus``: the corpus file ``VAD_<array>_<name>.txt`` (one value per array sample; output
@@ -163,7 +163,7 @@ def _corpus_vad(rec: Recording, name: str, n_in: int, take: np.ndarray) -> np.nd
 def _webrtc_vad(rec: Recording, name: str, origin: TimeOrigin, t_in: np.ndarray, fs_in: int, fs_out: int
                 ) -> tuple[np.ndarray, int]:
     """WebRTC VAD of the source signal on the array clock: ``(vad at fs_out (L_out,), mode)``."""
-    from doabench.acoustics.vad import webrtc_vad
+    from doabench.corpora.vad import webrtc_vad
 
     t_src, _ = read_times(require(rec.source_timestamps_file(name), "source audio time stamps"),
                           "source audio time stamps", origin)
@@ -219,7 +219,7 @@ def read_recording(rec: Recording, fs: int = 16000, vad: str = "auto", source: s
     # 6. voice activity
     vad_meta: dict[str, Any]
     if vad == "webrtc":
-        from doabench.acoustics.vad import webrtc_vad
+        from doabench.corpora.vad import webrtc_vad
 
         ref = np.asarray(y[:, 0], dtype=np.float64)
         full, mode = webrtc_vad(np.clip(0.5 * ref / (np.abs(ref).max() + 1e-12), -1.0, 1.0), fs)

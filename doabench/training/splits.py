@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 from typing import Iterable
 
-from doabench.acoustics.speech import LibriSpeechSource
+from doabench.corpora.speech import LibriSpeechSource
 from doabench.errors import ConfigError
 
 SPLITS = ("train", "val")

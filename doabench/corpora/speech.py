@@ -4,7 +4,7 @@ A :class:`SpeechSource` draws a chunk of ``duration_s`` seconds with a numpy Gen
 re-create exactly the same chunk later from the ``info`` dict it recorded (which is what a
 :class:`~doabench.acoustics.scenes.Scene` stores), so scenes stay small and JSON-serialisable.
 
-Every chunk is processed as in the paper: mean removed, WebRTC VAD (:mod:`doabench.acoustics.vad`)
+Every chunk is processed as in the paper: mean removed, WebRTC VAD (:mod:`doabench.corpora.vad`)
 and silent samples set to zero; ``SpeechChunk.vad`` is the per-sample VAD.
 
 * :class:`LibriSpeechSource` reads the official LibriSpeech layout
@@ -30,7 +30,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import soundfile as sf
 
-from doabench.acoustics.vad import clean_with_vad
+from doabench.corpora.vad import clean_with_vad
 from doabench.errors import ConfigError, InputError, NotFoundError
 
 LIBRISPEECH_ENV = "DOABENCH_LIBRISPEECH"

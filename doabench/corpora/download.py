@@ -20,7 +20,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
-from doabench.acoustics.speech import LIBRISPEECH_SUBSETS
+from doabench.corpora.speech import LIBRISPEECH_SUBSETS
 from doabench.errors import ConfigError, DoabenchError, InputError
 
 DEFAULT_BASE_URL = "https://www.openslr.org/resources/12"
