@@ -45,7 +45,8 @@ def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | 
     """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording."""
     from doabench.features import FeatureExtractor
     from doabench.features.observations import extractor_kinds, recording_features
-    from doabench.runner import _guarded, check_direction, check_directions
+    from doabench.runner import _guarded
+    from doabench.runner.loop import track_frames
 
     spec = tracker.frame_spec
     extractor = FeatureExtractor(array, kinds=extractor_kinds(tracker.features), resolution=tracker.resolution or (16, 32),
@@ -53,13 +54,12 @@ def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | 
     feats = recording_features(extractor, audio, sample_vad, tracker.features, spec, device)
     n = len(feats["vad"])
     _guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
-    if tracker.causal:
-        directions = np.stack([check_direction(tracker, _guarded(
-            tracker, f"step() at frame {t}", tracker.step,
-            {**{k: v[t] for k, v in feats.items()}, "vad": int(feats["vad"][t])}), t)
-            for t in range(n)]) if n else np.zeros((0, 3))
-    else:
-        directions = check_directions(tracker, _guarded(tracker, "track()", tracker.track, feats), n)
+
+    def frame(t: int):
+        return {**{k: v[t] for k, v in feats.items()}, "vad": int(feats["vad"][t])} if t < n else None
+
+    # the runner's loop: the same step/track calls and checks as `doabench run`
+    directions = track_frames(tracker, n, frame(0), lambda t, _: frame(t + 1), lambda: feats)
     return {"times": spec.times(n), "directions": directions, "vad": feats["vad"].astype(bool)}
 
 
