@@ -1,7 +1,9 @@
 """Stateful feature transforms: precompute the delay/steering tables once, then map audio to features.
 
-Thin wrappers over :mod:`doabench.features.functional` (the torchaudio functional/transforms
-split). Tables live on the CPU and are copied to an input's device on first use there.
+Thin ``torch.nn.Module`` wrappers over :mod:`doabench.features.functional` (the torchaudio
+functional/transforms split). Their tables are buffers: ``.to(device)`` moves them, and a
+transform called on an input on another device moves itself there first (as the tables were
+copied lazily before), so CPU-built extractors still accept CUDA audio.
 
 * :class:`SRPPHAT` -> ``(batch, frames, n_theta, n_phi)`` maps
 * :class:`GCCPHAT` -> ``(batch, frames, n_pairs, 2 * max_lag + 1)``
@@ -82,45 +84,45 @@ def prepare_vad(sample_vad, batch: int, samples: int, batched: bool, device) -> 
     return (v != 0).to(device)
 
 
-class _DeviceCache:
-    """CPU tensors copied lazily to each device they are used on."""
+class _Transform(torch.nn.Module):
+    """A feature transform whose tables are buffers (never trained: no parameters)."""
 
-    def __init__(self, **tensors: torch.Tensor | None) -> None:
-        self._cpu = tensors
-        self._by_device: dict[torch.device, dict] = {}
-
-    def on(self, device: torch.device) -> dict:
-        if device not in self._by_device:
-            self._by_device[device] = {k: (None if v is None else v.to(device)) for k, v in self._cpu.items()}
-        return self._by_device[device]
+    def follow(self, device: torch.device) -> "_Transform":
+        """Move the tables to ``device`` when an input arrives there; returns ``self``."""
+        buffer = next(self.buffers(), None)
+        if buffer is not None and buffer.device != torch.device(device):
+            self.to(device)
+        return self
 
 
-class Spectrogram:
+class Spectrogram(_Transform):
     """Magnitude/phase spectrogram features (:func:`functional.spectrogram_features`).
 
-    ``__call__(audio (batch, n_mics, samples), vad (batch, frames) | None)`` ->
+    ``forward(audio (batch, n_mics, samples), vad (batch, frames) | None)`` (call the module) ->
     ``(batch, frames, 2 * n_mics, window // 2)`` float32, silent frames zeroed.
     """
 
     def __init__(self, frame_spec: FrameSpec = FrameSpec()) -> None:
+        super().__init__()
         self.frame_spec = frame_spec
 
     def from_spectra(self, X: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
         return F.zero_silent(F.spectrogram_features(X), vad)
 
-    def __call__(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
         X = F.stft_frames(audio, self.frame_spec.window, self.frame_spec.hop)
         return self.from_spectra(X, vad)
 
 
-class GCCPHAT:
+class GCCPHAT(_Transform):
     """GCC-PHAT of every unique mic pair, lags ``-max_lag..max_lag`` with ``max_lag = array.max_lag(fs)``.
 
-    ``__call__(audio (batch, n_mics, samples), vad (batch, frames) | None)`` ->
+    ``forward(audio (batch, n_mics, samples), vad (batch, frames) | None)`` (call the module) ->
     ``(batch, frames, n_pairs, 2 * max_lag + 1)`` float32, silent frames zeroed.
     """
 
     def __init__(self, array: MicArray | str, frame_spec: FrameSpec = FrameSpec(), c: float = SPEED_OF_SOUND) -> None:
+        super().__init__()
         self.array = get_array(array)
         self.frame_spec = frame_spec
         self.c = float(c)
@@ -130,9 +132,9 @@ class GCCPHAT:
                 f"array {self.array.name!r} needs lags up to {self.max_lag} samples, too many for a "
                 f"{frame_spec.window}-sample window"
             )
-        self.pairs = torch.from_numpy(self.array.pairs)
-        index = F.gram_lag_index(self.pairs, self.array.n_mics, self.max_lag)
-        self._tables = _DeviceCache(pairs=self.pairs, index=index)
+        pairs = torch.from_numpy(self.array.pairs)
+        self.register_buffer("pairs", pairs, persistent=False)  # (n_pairs, 2) mic indices
+        self.register_buffer("index", F.gram_lag_index(pairs, self.array.n_mics, self.max_lag), persistent=False)
 
     @property
     def n_lags(self) -> int:
@@ -140,22 +142,22 @@ class GCCPHAT:
 
     def from_phat(self, W: torch.Tensor) -> torch.Tensor:
         """Unmasked GCC from whitened spectra ``(batch, frames, n_mics, n_bins)``."""
-        t = self._tables.on(W.device)
-        return F.gcc_from_phat(W, t["pairs"], self.max_lag, self.frame_spec.window, t["index"])
+        self.follow(W.device)
+        return F.gcc_from_phat(W, self.pairs, self.max_lag, self.frame_spec.window, self.index)
 
-    def __call__(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
         X = F.stft_frames(audio, self.frame_spec.window, self.frame_spec.hop)
         return F.zero_silent(self.from_phat(F.phat(X)), vad)
 
 
-class SRPPHAT:
+class SRPPHAT(_Transform):
     """SRP-PHAT maps on the equiangular grid of ``resolution = (n_theta, n_phi)``.
 
     ``mode="nearest"`` (the paper) rounds pair delays to whole samples and looks them up in the
     GCC; ``mode="exact"`` evaluates fractional delays exactly (PHAT beamformer). With
     ``normalize=True`` (default) maps have their mean removed and are divided by their maximum.
 
-    ``__call__(audio (batch, n_mics, samples), vad (batch, frames) | None)`` ->
+    ``forward(audio (batch, n_mics, samples), vad (batch, frames) | None)`` (call the module) ->
     ``(batch, frames, n_theta, n_phi)`` float32, silent frames zeroed.
     """
 
@@ -170,6 +172,7 @@ class SRPPHAT:
     ) -> None:
         if mode not in F.DELAY_MODES:
             raise ConfigError(f"unknown delay mode {mode!r}: use one of {', '.join(F.DELAY_MODES)}")
+        super().__init__()
         self.array = get_array(array)
         self.resolution = as_resolution(resolution)
         self.frame_spec = frame_spec
@@ -179,7 +182,7 @@ class SRPPHAT:
         self.gcc = GCCPHAT(self.array, frame_spec, c)
         n_theta, n_phi = self.resolution
         tau = F.grid_delays(self.array.positions, n_theta, n_phi, frame_spec.fs, self.planar, c)
-        self.tau = torch.from_numpy(tau)  # (n_mics, n_grid) samples, float64
+        self.register_buffer("tau", torch.from_numpy(tau), persistent=False)  # (n_mics, n_grid) samples, float64
         index = steer = None
         if mode == "nearest":
             index = torch.from_numpy(F.nearest_lag_index(tau, self.array.pairs, self.gcc.max_lag))
@@ -187,19 +190,20 @@ class SRPPHAT:
             nbytes = F.n_bins(frame_spec.window) * tau.size * 8
             if nbytes <= _STEER_CACHE_BYTES:
                 steer = F.steering(self.tau, frame_spec.window)
-        self._tables = _DeviceCache(index=index, steer=steer, tau=self.tau)
+        self.register_buffer("index", index, persistent=False)  # None in exact mode
+        self.register_buffer("steer", steer, persistent=False)  # None unless cached
 
     def raw_from_phat(self, W: torch.Tensor, gcc: torch.Tensor | None = None) -> torch.Tensor:
         """Raw maps from whitened spectra; ``gcc`` (this array's full GCC) is reused if given."""
         n_theta, n_phi = self.resolution
-        t = self._tables.on(W.device)
+        self.follow(W.device)
         if self.mode == "exact":
-            return F.srp_exact_from_phat(W, t["tau"], self.frame_spec.window, n_theta, n_phi, t["steer"])
+            return F.srp_exact_from_phat(W, self.tau, self.frame_spec.window, n_theta, n_phi, self.steer)
         if gcc is None:
             gcc = self.gcc.from_phat(W)
-        return F.srp_from_gcc(gcc, t["index"], n_theta, n_phi)
+        return F.srp_from_gcc(gcc, self.index, n_theta, n_phi)
 
-    def __call__(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
         X = F.stft_frames(audio, self.frame_spec.window, self.frame_spec.hop)
         maps = self.raw_from_phat(F.phat(X))
         if self.normalize:
@@ -207,10 +211,10 @@ class SRPPHAT:
         return F.zero_silent(maps, vad)
 
 
-class FeatureExtractor:
+class FeatureExtractor(_Transform):
     """Every feature a tracker may read, on one frame grid.
 
-    ``__call__(audio, sample_vad=None)``: ``audio`` ``(batch, n_mics, samples)`` (or
+    ``forward(audio, sample_vad=None)`` (call the extractor): ``audio`` ``(batch, n_mics, samples)`` (or
     ``(n_mics, samples)``, then outputs have no batch axis), tensor or ndarray; ``sample_vad``
     ``(batch, samples)`` bool/0-1 or None (all active). Returns a dict with the requested
     ``kinds`` among
@@ -235,6 +239,7 @@ class FeatureExtractor:
         spectrogram_frame_spec: FrameSpec | None = None,
         c: float = SPEED_OF_SOUND,
     ) -> None:
+        super().__init__()
         kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
         unknown = [k for k in kinds if k not in KINDS]
         if unknown or not kinds:
@@ -301,7 +306,7 @@ class FeatureExtractor:
         self, x: torch.Tensor, sample_vad: torch.Tensor | None, main: bool = True, separate: bool = True
     ) -> dict[str, torch.Tensor]:
         """Features of validated audio ``(batch, n_mics, samples)`` float32 and VAD
-        ``(batch, samples)`` bool or None (no checks; see :meth:`__call__`).
+        ``(batch, samples)`` bool or None (no checks; see :meth:`forward`).
 
         ``main=False`` skips everything on ``frame_spec``'s grid (``vad`` included) and
         ``separate=False`` skips a spectrogram on its own grid (used by the streaming extractor).
@@ -337,7 +342,7 @@ class FeatureExtractor:
             out["vad"] = vad
         return {k: out[k] for k in self.feature_shapes() if k in out}
 
-    def __call__(self, audio, sample_vad=None) -> dict[str, torch.Tensor]:
+    def forward(self, audio, sample_vad=None) -> dict[str, torch.Tensor]:
         x, batched = prepare_audio(audio, self.array.n_mics, self.min_samples)
         vad = prepare_vad(sample_vad, x.shape[0], x.shape[-1], batched, x.device)
         out = self.compute(x, vad)
