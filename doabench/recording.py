@@ -10,15 +10,21 @@ from doabench.arrays import MicArray
 from doabench.errors import InputError, NotFoundError
 
 
-def read_audio(path: str | Path) -> tuple[np.ndarray, int]:
-    """``(n_channels, samples)`` float32 and the sample rate; unreadable files are InputErrors."""
-    import soundfile as sf
-
+def _existing_file(path: str | Path) -> Path:
+    """``path`` as a Path; a missing path or a folder is a one-line error naming it."""
     path = Path(path)
     if not path.exists():
         raise NotFoundError(f"recording {path} does not exist")
     if not path.is_file():
         raise InputError(f"recording {path} is not a file")
+    return path
+
+
+def read_audio(path: str | Path) -> tuple[np.ndarray, int]:
+    """``(n_channels, samples)`` float32 and the sample rate; unreadable files are InputErrors."""
+    import soundfile as sf
+
+    path = _existing_file(path)
     try:
         data, sr = sf.read(str(path), dtype="float32", always_2d=True)
     except Exception as exc:  # libsndfile reports every unreadable file its own way
@@ -139,11 +145,7 @@ def open_recording(path: str | Path, array: MicArray, fs: int, allow_resample: b
     """
     import soundfile as sf
 
-    path = Path(path)
-    if not path.exists():
-        raise NotFoundError(f"recording {path} does not exist")
-    if not path.is_file():
-        raise InputError(f"recording {path} is not a file")
+    path = _existing_file(path)
     try:
         with sf.SoundFile(str(path)) as f:
             n_channels, sr, n_in = f.channels, int(f.samplerate), f.frames
