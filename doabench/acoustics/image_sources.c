@@ -1,0 +1,120 @@
+/* doabench: the image-source part of room impulse responses, one fused pass per image.
+ *
+ * Built and loaded by doabench/acoustics/native.py (ctypes; no Python headers needed). It
+ * computes what doabench.acoustics.rir.render_images computes with torch ops, in one loop:
+ * for every (point, image) pair within reach and every microphone, the distance, the amplitude
+ * gain / d and the arrival time d fs / c, then the 34 taps of the Hann-windowed sinc centred on
+ * that time, read from a table of OVER + 1 phases with linear interpolation between the two
+ * neighbouring phases (the torch path does the same interpolation on a fine time grid followed by
+ * a convolution with the same table, so both give the same samples up to float32 rounding).
+ *
+ * Why a compiled loop: the torch path needs about fifteen elementwise passes plus two scatters
+ * per (point, image, microphone) element, 26-50 ns per element on one core here; this loop keeps
+ * everything in registers and writes 34 contiguous samples per element (numbers in
+ * docs/performance.md).
+ *
+ * Floating point: built with -ffp-contract=off, so every product and sum is one IEEE float32
+ * operation whatever the instruction set; samples accumulate in image order. Results are bitwise
+ * the same on every x86-64 or ARM machine and compiler.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#define DB_HALF 16       /* SINC_HALF */
+#define DB_OVER 8        /* OVERSAMPLE: table phases per sample */
+#define DB_TAPS 34       /* samples one image touches: 2 * DB_HALF + 2 */
+#define DB_TAP_STRIDE 48 /* table row length (taps padded with zeros) */
+#define DB_BLOCK 64      /* images per block of the vectorised distance work */
+
+/* 16 floats; GCC/clang vector extensions compile to the widest vectors of the target (one
+ * AVX-512 register, two AVX or four SSE/NEON registers). Unaligned loads and stores go through
+ * memcpy, which compiles to single unaligned vector moves. */
+typedef float db_v16 __attribute__((vector_size(64)));
+
+static inline db_v16 db_load(const float *p) {
+    db_v16 v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+static inline void db_store(float *p, db_v16 v) { memcpy(p, &v, sizeof v); }
+
+int doabench_image_kernel_version(void) { return 3; }
+
+/* src (P, 3), mic (M, 3), sign (I, 3), offset (I, 3), gain (I): float32, contiguous, room
+ * coordinates relative to a common origin (the array centre).
+ * table (DB_OVER + 1, DB_TAP_STRIDE): table[ph][n] = windowed_sinc(n - DB_HALF - ph / DB_OVER).
+ * out: row (p, m) starts at out + (p * M + m) * stride (stride >= n_out); its first n_out samples
+ * are written (zeroed first), the rest is left alone.
+ * reach2: squared distance beyond which an image cannot reach sample n_out of any microphone.
+ * scale: fs / c * DB_OVER (fine-grid units per metre).
+ * work: scratch of 4 * (I + DB_BLOCK) floats.
+ *
+ * Loop order: per point, the images within reach are gathered once (structure of arrays); then
+ * per microphone, blocks of images get their distances vectorised across images and their taps
+ * added into that microphone's row, which stays in the L1 cache (the additions are the cost:
+ * with all microphones' rows live, each image's 34 samples came from L2, 3x slower). */
+int doabench_render_images(int64_t P, int64_t M, int64_t I, const float *restrict src,
+                           const float *restrict mic, const float *restrict sign,
+                           const float *restrict offset, const float *restrict gain, float reach2,
+                           float scale, const float *restrict table, float *restrict out,
+                           int64_t n_out, int64_t stride, float *restrict work) {
+    float *restrict ix = work, *restrict iy = work + (I + DB_BLOCK), *restrict iz = work + 2 * (I + DB_BLOCK);
+    float *restrict ig = work + 3 * (I + DB_BLOCK);
+    float w0[DB_BLOCK], w1[DB_BLOCK];
+    int32_t q[DB_BLOCK];
+    for (int64_t r = 0; r < P * M; r++) memset(out + r * stride, 0, (size_t)n_out * sizeof(float));
+    for (int64_t p = 0; p < P; p++) {
+        const float sx = src[3 * p], sy = src[3 * p + 1], sz = src[3 * p + 2];
+        int64_t K = 0; /* images of this point within reach */
+        for (int64_t i = 0; i < I; i++) {
+            const float *sg = sign + 3 * i, *of = offset + 3 * i;
+            const float x = of[0] + sg[0] * sx, y = of[1] + sg[1] * sy, z = of[2] + sg[2] * sz;
+            if (x * x + y * y + z * z > reach2) continue;
+            ix[K] = x;
+            iy[K] = y;
+            iz[K] = z;
+            ig[K] = gain[i];
+            K++;
+        }
+        for (int64_t m = 0; m < M; m++) {
+            const float mx = mic[3 * m], my = mic[3 * m + 1], mz = mic[3 * m + 2];
+            float *row = out + (p * M + m) * stride;
+            for (int64_t k0 = 0; k0 < K; k0 += DB_BLOCK) {
+                const int64_t nk = K - k0 < DB_BLOCK ? K - k0 : DB_BLOCK;
+                /* distances, amplitudes and fine-grid arrival times (vectorised) */
+                for (int64_t k = 0; k < nk; k++) {
+                    const float dx = ix[k0 + k] - mx, dy = iy[k0 + k] - my, dz = iz[k0 + k] - mz;
+                    float d = sqrtf(dx * dx + dy * dy + dz * dz);
+                    d = d < 1e-6f ? 1e-6f : d;
+                    const float w = ig[k0 + k] / d;
+                    const float t = d * scale; /* >= 0 */
+                    const int32_t qk = (int32_t)t;
+                    const float frac = t - (float)qk;
+                    q[k] = qk;
+                    w1[k] = w * frac;
+                    w0[k] = w - w * frac;
+                }
+                /* 34 taps per image, interpolated between two neighbouring phases */
+                for (int64_t k = 0; k < nk; k++) {
+                    const int64_t base = (int64_t)(q[k] / DB_OVER) - DB_HALF; /* first sample */
+                    const float *t0 = table + (q[k] % DB_OVER) * DB_TAP_STRIDE, *t1 = t0 + DB_TAP_STRIDE;
+                    const float a = w0[k], b = w1[k];
+                    if (base >= 0 && base + DB_TAP_STRIDE <= n_out) {
+                        /* three vectors of 16 taps; taps 34-47 of the table are zeros */
+                        float *r = row + base;
+                        for (int n = 0; n < DB_TAP_STRIDE; n += 16)
+                            db_store(r + n, db_load(r + n) + (a * db_load(t0 + n) + b * db_load(t1 + n)));
+                    } else {
+                        for (int n = 0; n < DB_TAPS; n++) {
+                            const int64_t s = base + n;
+                            if (s >= 0 && s < n_out) row[s] += a * t0[n] + b * t1[n];
+                        }
+                    }
+                }
+            }
+        }
+    }
+    return 0;
+}

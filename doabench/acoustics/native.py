@@ -1,0 +1,153 @@
+"""The compiled image-source kernel (``image_sources.c``): built on first use, loaded with ctypes.
+
+The builtin engine's per-image work is one fused loop in C when a C compiler is available
+(``cc``, ``gcc`` or ``clang``, or ``$CC``), and the torch path of :func:`rir.render_images`
+otherwise. Both compute the same model; they agree to float32 rounding (tested), and each is
+bitwise reproducible on its own. ``doabench`` records which one ran in the simulator's
+provenance (:func:`kernel_name`).
+
+Why not a library: numba is not one of doabench's dependencies, and ``torch.compile`` (inductor)
+needs seconds to minutes of compilation per process and shape and cannot fuse the scattered
+additions. The kernel is 80 lines of C without Python headers, so any C compiler builds it in
+well under a second; the shared object is cached per source, compiler and CPU under
+``$DOABENCH_CACHE`` (default ``$XDG_CACHE_HOME/doabench`` or ``~/.cache/doabench``) and written
+atomically (several worker processes may build it at once).
+
+``DOABENCH_NATIVE=0`` turns the kernel off (the torch path runs).
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+import threading
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+SOURCE = "image_sources.c"
+KERNEL_VERSION = 3  # doabench_image_kernel_version() of the source
+FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-fno-math-errno", "-shared", "-fPIC"]
+_HALF, _OVER = 16, 8  # SINC_HALF and OVERSAMPLE as compiled into the C source
+_TAPS = 34  # samples per image in the C source (2 * SINC_HALF + 2)
+_TAP_STRIDE = 48
+_BLOCK = 64  # DB_BLOCK
+
+_lock = threading.Lock()
+_state: dict = {}  # "lib": ctypes.CDLL or None, "why": reason when None
+
+
+def _cache_dir() -> Path:
+    if os.environ.get("DOABENCH_CACHE"):
+        return Path(os.environ["DOABENCH_CACHE"]) / "native"
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "doabench" / "native"
+
+
+def _compiler() -> str | None:
+    for name in [os.environ.get("CC"), "cc", "gcc", "clang"]:
+        if name and shutil.which(name):
+            return shutil.which(name)
+    return None
+
+
+def _cpu_signature() -> str:
+    """What -march=native depends on: the CPU's feature flags (Linux) or its name."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("flags", "Features")):
+                return line
+    except OSError:
+        pass
+    return platform.machine() + platform.processor()
+
+
+def _build(cc: str, source: bytes, target: Path) -> None:
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
+        src = Path(tmp) / SOURCE
+        src.write_bytes(source)
+        obj = Path(tmp) / target.name
+        subprocess.run([cc, *FLAGS, "-o", str(obj), str(src), "-lm"], check=True,
+                       capture_output=True, timeout=120)
+        os.replace(obj, target)  # atomic: concurrent builders write the same bytes
+
+
+def _load():
+    if os.environ.get("DOABENCH_NATIVE", "1") == "0":
+        return None, "turned off by DOABENCH_NATIVE=0"
+    cc = _compiler()
+    if cc is None:
+        return None, "no C compiler found (cc, gcc, clang or $CC)"
+    source = resources.files("doabench.acoustics").joinpath(SOURCE).read_bytes()
+    try:
+        version = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError) as exc:
+        return None, f"{cc} --version failed: {exc}"
+    key = hashlib.sha256(b"\0".join([source, version.encode(), " ".join(FLAGS).encode(),
+                                     _cpu_signature().encode()])).hexdigest()[:20]
+    target = _cache_dir() / f"image_sources-{key}.so"
+    try:
+        if not target.exists():
+            _build(cc, source, target)
+        lib = ctypes.CDLL(str(target))
+    except (OSError, subprocess.SubprocessError) as exc:
+        return None, f"building {SOURCE} failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+    if lib.doabench_image_kernel_version() != KERNEL_VERSION:
+        return None, "stale kernel"
+    i64, f32, ptr = ctypes.c_int64, ctypes.c_float, ctypes.c_void_p
+    lib.doabench_render_images.restype = ctypes.c_int
+    lib.doabench_render_images.argtypes = [i64, i64, i64, ptr, ptr, ptr, ptr, ptr, f32, f32, ptr, ptr, i64,
+                                           i64, ptr]
+    return lib, ""
+
+
+def library():
+    """The loaded kernel library, or None (the reason in :func:`unavailable_reason`)."""
+    with _lock:
+        if "lib" not in _state:
+            _state["lib"], _state["why"] = _load()
+        return _state["lib"]
+
+
+def unavailable_reason() -> str:
+    library()
+    return _state["why"]
+
+
+def kernel_name() -> str:
+    """``"c"`` when the compiled kernel runs on CPU, else ``"torch"`` (for provenance)."""
+    return "c" if library() is not None else "torch"
+
+
+def tap_table(windowed_sinc, half: int, over: int) -> np.ndarray:
+    """``(over + 1, 48)`` float32: row ``ph`` holds ``windowed_sinc(n - half - ph / over)`` for
+    ``n < 2 half + 2``, zeros after."""
+    if (half, over) != (_HALF, _OVER):
+        raise ValueError(f"the C kernel is built for SINC_HALF {_HALF} and OVERSAMPLE {_OVER}")
+    n = np.arange(_TAPS)[None, :]
+    ph = np.arange(over + 1)[:, None]
+    table = np.zeros((over + 1, _TAP_STRIDE), dtype=np.float32)
+    table[:, :_TAPS] = windowed_sinc(n - half - ph / over, half)
+    return table
+
+
+def render(lib, src: np.ndarray, mic: np.ndarray, sign: np.ndarray, offset: np.ndarray, gain: np.ndarray,
+           reach2: float, scale: float, table: np.ndarray, out: np.ndarray, n_out: int) -> None:
+    """Call the kernel. Arrays float32 C-contiguous: ``src`` (P, 3), ``mic`` (M, 3), ``sign`` and
+    ``offset`` (I, 3), ``gain`` (I,), ``table`` (:func:`tap_table`); ``out`` (P, M, stride) with
+    contiguous rows (its first ``n_out`` samples per row are written)."""
+    P, M, I = src.shape[0], mic.shape[0], gain.shape[0]
+    arrays = (src, mic, sign, offset, gain, table)
+    for a in arrays:
+        assert a.dtype == np.float32 and a.flags.c_contiguous
+    assert out.dtype == np.float32 and out.strides[-1] == 4 and out.strides[1] == out.shape[2] * 4
+    assert out.strides[0] == M * out.strides[1] and out.shape[:2] == (P, M) and out.shape[2] >= n_out
+    work = np.empty(4 * (I + _BLOCK), dtype=np.float32)
+    lib.doabench_render_images(P, M, I, *(a.ctypes.data for a in arrays[:5]), float(reach2), float(scale),
+                               table.ctypes.data, out.ctypes.data, n_out, out.shape[2], work.ctypes.data)

@@ -1,0 +1,141 @@
+"""The compiled image-source kernel against an independent float64 evaluation and the torch path."""
+from __future__ import annotations
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from doabench.acoustics import native
+from doabench.acoustics import rir as engine
+from doabench.acoustics.room import Room
+from doabench.acoustics.simulators import get_simulator
+from doabench.geometry import SPEED_OF_SOUND
+
+FS = 16000
+WEIGHTS = (0.9, 0.6, 0.75, 1.0, 0.55, 0.8)
+
+needs_kernel = pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None,
+                                  reason="no C compiler on this machine")
+
+
+def _scene(t60=0.5, n_points=5):
+    room = Room((5.2, 4.1, 2.9), t60, WEIGHTS)
+    src = np.linspace([1.0, 1.1, 1.2], [2.6, 3.2, 1.7], n_points)
+    mics = np.array([[3.9, 2.5, 1.3], [3.95, 2.45, 1.35], [3.85, 2.55, 1.25]])
+    return room, src, mics
+
+
+def _render(images, src, mics, n_out, use_kernel: bool, out=None):
+    lib = native.library()
+    saved = dict(native._state)
+    try:
+        if not use_kernel:
+            native._state.update(lib=None, why="test")
+        return engine.render_images(images, torch.tensor(src), torch.tensor(mics), FS, n_out, out=out)
+    finally:
+        native._state.clear()
+        native._state.update(saved)
+        assert native.library() is lib
+
+
+def _reference(images, src, mics, n_out):
+    """float64, image by image: gain / (4 pi d) times the windowed sinc at the arrival time,
+    interpolated linearly between the 1/OVERSAMPLE-sample phases (the engine's model)."""
+    over = engine.OVERSAMPLE
+    out = np.zeros((len(src), len(mics), n_out))
+    s = np.arange(n_out)
+    for p, x in enumerate(src):
+        pos = images.offset + images.sign * x
+        for m, y in enumerate(mics):
+            d = np.linalg.norm(pos - y, axis=1)
+            fine = d * FS / SPEED_OF_SOUND * over
+            q = np.floor(fine)
+            frac = fine - q
+            w = images.gain / (4 * math.pi * d)
+            for wk, qk, fk in zip(w, q, frac):
+                lo = int(qk // over) - engine.SINC_HALF - 1
+                sl = slice(max(lo, 0), max(min(lo + 2 * engine.SINC_HALF + 4, n_out), 0))
+                t = s[sl]
+                out[p, m, sl] += wk * ((1 - fk) * engine.windowed_sinc(t - qk / over)
+                                       + fk * engine.windowed_sinc(t - (qk + 1) / over))
+    return out
+
+
+@needs_kernel
+def test_kernel_builds_here():
+    assert native.library() is not None, native.unavailable_reason()
+    assert engine.image_kernel("cpu") == "c" and get_simulator("builtin").versions()["image_kernel"] == "c"
+
+
+@needs_kernel
+def test_kernel_matches_a_float64_evaluation_and_the_torch_path():
+    room, src, mics = _scene(t60=0.3, n_points=2)
+    images = engine.enumerate_images(room, 12.0)
+    n_out = int(12.0 / SPEED_OF_SOUND * FS) - 40
+    ref = _reference(images, src, mics, n_out)
+    c = _render(images, src, mics, n_out, use_kernel=True).numpy()
+    t = _render(images, src, mics, n_out, use_kernel=False).numpy()
+    peak = np.abs(ref).max()
+    # float32 arrival times (~3e-5 samples at 12 m), the same model
+    assert np.abs(c - ref).max() <= 5e-5 * peak
+    # the torch path's |p|^2 - 2 p.m + |m|^2 distances lose a little more
+    assert np.abs(t - ref).max() <= 5e-4 * peak
+    assert np.abs(c - t).max() <= 5e-4 * peak
+
+
+@needs_kernel
+def test_kernel_is_bitwise_reproducible_and_leaves_padding_alone():
+    room, src, mics = _scene()
+    images = engine.enumerate_images(room, 20.0)
+    n_out = 700
+    a = torch.full((len(src), len(mics), n_out + 13), 7.0)
+    b = torch.full((len(src), len(mics), n_out + 13), 7.0)
+    _render(images, src, mics, n_out, use_kernel=True, out=a)
+    _render(images, src, mics, n_out, use_kernel=True, out=b)
+    assert torch.equal(a, b)
+    assert torch.all(a[..., n_out:] == 7.0) and torch.all(a[..., :n_out] != 7.0)
+
+
+@needs_kernel
+def test_simulations_agree_between_kernel_and_torch_path():
+    room, src, mics = _scene(t60=0.6, n_points=8)
+    x = np.random.default_rng(0).standard_normal(8000)
+    sim = get_simulator("builtin")
+    y_c = sim.simulate(room, src, mics, x, FS, seed=5)
+    saved = dict(native._state)
+    try:
+        native._state.update(lib=None, why="test")
+        assert sim.versions()["image_kernel"] == "torch"
+        y_t = sim.simulate(room, src, mics, x, FS, seed=5)
+    finally:
+        native._state.clear()
+        native._state.update(saved)
+    assert np.linalg.norm(y_c - y_t) / np.linalg.norm(y_t) < 1e-4
+
+
+def test_without_a_compiler_the_torch_path_runs(monkeypatch):
+    monkeypatch.setattr(native, "_state", {})
+    monkeypatch.setattr(native, "_compiler", lambda: None)
+    assert native.library() is None and "no C compiler" in native.unavailable_reason()
+    assert engine.image_kernel("cpu") == "torch"
+    room, src, mics = _scene(t60=0.3, n_points=2)
+    h = get_simulator("builtin").rirs(room, src, mics, FS, seed=1)
+    assert h.shape[:2] == (2, 3) and np.all(np.isfinite(h))
+
+
+def test_native_can_be_turned_off(monkeypatch):
+    monkeypatch.setattr(native, "_state", {})
+    monkeypatch.setenv("DOABENCH_NATIVE", "0")
+    assert native.kernel_name() == "torch" and "DOABENCH_NATIVE" in native.unavailable_reason()
+
+
+@needs_kernel
+def test_a_failed_build_falls_back(monkeypatch, tmp_path):
+    monkeypatch.setattr(native, "_state", {})
+    monkeypatch.setenv("DOABENCH_CACHE", str(tmp_path))
+    monkeypatch.setattr(native, "FLAGS", ["--no-such-flag-xyz", *native.FLAGS])
+    assert native.library() is None and "failed" in native.unavailable_reason()
+    assert not any(tmp_path.rglob("*.so"))  # nothing half-written left behind
