@@ -20,6 +20,7 @@ a plausible magnitude (at most ``MAX_ABS_WEIGHT``).
 from __future__ import annotations
 
 import datetime
+import hashlib
 import json
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -29,8 +30,8 @@ import torch
 from torch import nn
 
 import doabench
-from doabench import parse_resolution, sha256_file  # noqa: F401  (sha256_file is used by the trackers)
 from doabench.errors import ConfigError, DoabenchError, InputError, NotFoundError
+from doabench.trackers import parse_resolution
 
 FORMAT = "doabench-weights/1"
 METADATA_KEY = "doabench"
@@ -41,6 +42,17 @@ ARRAY_TOLERANCE_M = 0.005
 MANIFEST_NAME = "SHA256SUMS"
 #: no trained weight is anywhere near this (the shipped ones stay below 1); larger means a broken file
 MAX_ABS_WEIGHT = 1e6
+
+
+def sha256_file(path: str | Path) -> str:
+    """Hex SHA-256 of a file (the shipped-weights manifest and the trackers' ``weights_hash``).
+    Written here rather than imported: this package uses doabench's public API only, and file
+    hashing is not part of it."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def resolution_text(resolution: tuple[int, int] | None) -> str | None:

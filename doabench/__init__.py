@@ -28,8 +28,6 @@ from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import DoabenchError
 from doabench.framing import FrameSpec
-from doabench.geometry import parse_resolution
-from doabench.results.provenance import sha256_file
 from doabench.trackers import Tracker, available_trackers, make_tracker, register_tracker
 from doabench.trackers.base import ResetContext
 
@@ -97,6 +95,5 @@ available_tasks()  # registers every task with Gymnasium at import time
 __all__ = [
     "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ResetContext", "TaskSpec", "Tracker",
     "TrainableTracker", "available_tasks", "available_trackers", "get_array", "get_task_spec", "load_array_file",
-    "make_tracker", "register_task", "register_task_kind", "parse_resolution", "register_tracker", "run",
-    "sha256_file", "srp_maps",
+    "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "srp_maps",
 ]

@@ -1,5 +1,10 @@
-"""Trackers: the public base class, the registry and the built-in classical trackers."""
+"""Trackers: the public base class, the registry and the built-in classical trackers.
+
+``parse_resolution`` is here for tracker specs that carry a grid (``cross3d:16x32``,
+``srp-max:32x64``): every learned or classical tracker with a resolution parses it the same way.
+"""
+from doabench.geometry import parse_resolution
 from doabench.trackers.base import Tracker
 from doabench.trackers.registry import available_trackers, make_tracker, register_tracker, resolve_tracker
 
-__all__ = ["Tracker", "available_trackers", "make_tracker", "register_tracker", "resolve_tracker"]
+__all__ = ["Tracker", "available_trackers", "make_tracker", "parse_resolution", "register_tracker", "resolve_tracker"]
