@@ -9,7 +9,7 @@ import torch
 
 from doabench.errors import ConfigError
 from doabench.training import checkpoint as ckpt
-from doabench.training.protocol import check_trainable
+from doabench.training.protocol import check_trainable, feature_options
 
 
 def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_id: str | None = None) -> dict[str, Any]:
@@ -27,7 +27,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
         "array": spec.array,
         "features": list(tracker.features),
         "frame": tracker.frame_spec.to_dict(),
-        "feature_settings": {"delays": getattr(tracker, "delays", "nearest"),
+        "feature_settings": {"delays": feature_options(tracker)["delays"],
                              "maps": "mean removed, divided by the maximum, zero in silent frames"},
         "doabench_version": __version__,
         "torch_version": torch.__version__,

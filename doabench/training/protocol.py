@@ -12,9 +12,14 @@ tracker with :func:`doabench.make_tracker` and trains it through this small prot
     tracker.save_weights(path, metadata)   # safetensors file; metadata["training"] is the
                                            # training record (see doabench.training.export)
 
-Optional: ``tracker.training_defaults`` (dict) with recipe overrides the paper gives for that
-model, e.g. ``{"t60": (0.0, 0.3)}`` for spectrogram models (section V-A); when absent the trainer
-applies that rule itself to trackers reading ``spectrogram``.
+Optional (read through :func:`feature_options` and :func:`training_defaults`, nowhere else):
+
+* ``tracker.delays``: SRP-PHAT delay mode of its features, ``"nearest"`` (default) or ``"exact"``;
+* ``tracker.spectrogram_frame_spec``: a FrameSpec for its spectrogram when that differs from
+  ``frame_spec`` (default None: the same);
+* ``tracker.training_defaults`` (dict) with recipe overrides the paper gives for that model, e.g.
+  ``{"t60": (0.0, 0.3)}`` for spectrogram models (section V-A); when absent the trainer applies
+  that rule itself to trackers reading ``spectrogram``.
 """
 from __future__ import annotations
 
@@ -62,6 +67,17 @@ def check_trainable(tracker: Any, name: str) -> TrainableTracker:
     if not any(p.requires_grad for p in network.parameters()):
         raise ConfigError(f"tracker {name!r} has no trainable parameters")
     return tracker
+
+
+def feature_options(tracker: Any) -> dict[str, Any]:
+    """The optional feature settings a learned tracker declares: ``{"delays": "nearest" | "exact",
+    "spectrogram_frame_spec": FrameSpec | None}`` (defaults when it declares none)."""
+    delays = getattr(tracker, "delays", None) or "nearest"
+    spec = getattr(tracker, "spectrogram_frame_spec", None)
+    if spec is not None and not isinstance(spec, FrameSpec):
+        raise ConfigError(f"tracker {getattr(tracker, 'name', tracker)!r}: spectrogram_frame_spec must be a "
+                          f"doabench.FrameSpec, got {type(spec).__name__}")
+    return {"delays": str(delays), "spectrogram_frame_spec": spec}
 
 
 def training_defaults(tracker: Any) -> dict[str, Any]:
