@@ -13,7 +13,8 @@ What users implement or receive: ``Tracker`` (subclass it) and the ``ResetContex
 ``reset(array, **context)`` gets; ``TaskSpec`` (a task's parsed TOML); ``EpisodeSource`` (the
 protocol a task kind's episode source implements, registered with ``register_task_kind``);
 ``TrainableTracker`` (what ``doabench train`` needs from a learned tracker; it needs torch, which
-is imported only when the name is first used).
+is imported only when the name is first used); ``ObservationPlan`` (a recording's per-frame
+observations, names and spaces, as every task computes them; also loaded on first use).
 """
 from __future__ import annotations
 
@@ -77,23 +78,29 @@ def run(tracker, task, **kwargs):
 
 
 def __getattr__(name: str) -> Any:
-    """``TrainableTracker`` on first use: its module imports torch, ``import doabench`` does not."""
+    """``TrainableTracker`` and ``ObservationPlan`` on first use: ``import doabench`` stays light
+    (the first's module imports torch; the second's imports gymnasium and builds on torch)."""
     if name == "TrainableTracker":
         from doabench.training.protocol import TrainableTracker
 
         globals()[name] = TrainableTracker
         return TrainableTracker
+    if name == "ObservationPlan":
+        from doabench.features.plan import ObservationPlan
+
+        globals()[name] = ObservationPlan
+        return ObservationPlan
     raise AttributeError(f"module 'doabench' has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | {"TrainableTracker"})
+    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan"})
 
 
 available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
-    "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ResetContext", "TaskSpec", "Tracker",
-    "TrainableTracker", "available_tasks", "available_trackers", "get_array", "get_task_spec", "load_array_file",
+    "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ResetContext",
+    "TaskSpec", "Tracker", "TrainableTracker", "available_tasks", "available_trackers", "get_array", "get_task_spec", "load_array_file",
     "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "srp_maps",
 ]

@@ -28,10 +28,12 @@ from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, InputError
+from doabench.features.kinds import OBSERVATION_KINDS, check_kinds
+from doabench.features.plan import ObservationPlan
 from doabench.framing import FrameSpec
 from doabench.geometry import great_circle_error, parse_resolution
 
-FEATURE_KINDS = ("srp", "srp_max", "gcc", "spectrogram", "audio")
+FEATURE_KINDS = OBSERVATION_KINDS  # the plan's list (doabench.features.kinds), under the environment's name
 
 
 class DoaEnv(gymnasium.Env):
@@ -51,10 +53,7 @@ class DoaEnv(gymnasium.Env):
                  **source_options: Any) -> None:
         super().__init__()
         self.spec_task = get_task_spec(task)
-        unknown = sorted(set(features) - set(FEATURE_KINDS))
-        if unknown:
-            raise ConfigError(f"unknown feature kind(s) {unknown}; choose from {', '.join(FEATURE_KINDS)}")
-        self.features = tuple(features)
+        self.features = check_kinds(features)
         self.resolution = parse_resolution(resolution) if isinstance(resolution, str) else tuple(resolution)
         self.delays = delays
         self.frame_spec = frame_spec or self.spec_task.frames
@@ -66,43 +65,17 @@ class DoaEnv(gymnasium.Env):
         self.source = make_episode_source(self.spec_task, device=device, **source_options)
         self._cache: OrderedDict[int, tuple[Episode, dict, dict]] = OrderedDict()
         self._cache_size = max(1, cache_size)
-        self._extractors: dict[bytes, Any] = {}
-        self.observation_space = self._observation_space()
+        # the one pipeline from an episode's audio to its observations, spaces included
+        self.plan = ObservationPlan(self.features, self.array, self.frame_spec, (self.resolution,), delays)
+        self.observation_space = self.plan.observation_space()
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self._t = 0
         self._episode_index: int | None = None
-
-    # -- spaces -----------------------------------------------------------------------------------
-    def _observation_space(self) -> spaces.Dict:
-        m, n_pairs = self.array.n_mics, len(self.array.pairs)
-        lags = 2 * self.array.max_lag(self.frame_spec.fs) + 1
-        boxes = {
-            # mean removed and divided by the maximum: the maximum is 1, the minimum has no bound
-            "srp": spaces.Box(-np.inf, 1.0, self.resolution, np.float32),
-            "srp_max": spaces.Box(0.0, 1.0, (2,), np.float32),
-            # PHAT-weighted: a mean of unit phasors, so |R| <= 1
-            "gcc": spaces.Box(-1.0, 1.0, (n_pairs, lags), np.float32),
-            "spectrogram": spaces.Box(-1.0, 1.0, (2 * m, self.frame_spec.window // 2), np.float32),
-            "audio": spaces.Box(-np.inf, np.inf, (m, self.frame_spec.window), np.float32),
-        }
-        space = {k: boxes[k] for k in self.features}
-        space["vad"] = spaces.Discrete(2)
-        return spaces.Dict(space)
 
     # -- episodes ---------------------------------------------------------------------------------
     @property
     def n_episodes(self) -> int:
         return len(self.source)
-
-    def _extractor(self, array: MicArray):
-        from doabench.features import FeatureExtractor
-        from doabench.features.observations import extractor_kinds
-
-        key = array.positions.tobytes()
-        if key not in self._extractors:
-            self._extractors[key] = FeatureExtractor(array, kinds=extractor_kinds(self.features), resolution=self.resolution,
-                                                     mode=self.delays, frame_spec=self.frame_spec)
-        return self._extractors[key]
 
     def load_episode(self, index: int) -> tuple[Episode, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Render episode ``index``; returns (episode, features (T, ...), truth (T, ...))."""
@@ -121,10 +94,7 @@ class DoaEnv(gymnasium.Env):
             if episode.n_mics != array.n_mics:
                 raise InputError(f"episode {index} of {self.spec_task.id!r} has {episode.n_mics} channels but "
                                  f"array {array.name!r} has {array.n_mics} microphones")
-            from doabench.features.observations import recording_features
-
-            feats = recording_features(self._extractor(array), episode.audio, episode.feature_vad, self.features,
-                                       self.frame_spec, self.device)
+            feats = self.plan.observations(episode.audio, episode.feature_vad, array, self.device)
             truth = episode.frame_truth(self.frame_spec)
         n = len(truth["directions"])
         feats["vad"] = feats["vad"].astype(np.int64) if "vad" in feats else truth["vad"].astype(np.int64)

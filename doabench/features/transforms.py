@@ -20,10 +20,11 @@ import torch
 from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError, InputError
 from doabench.features import functional as F
+from doabench.features.kinds import EXTRACTOR_KINDS
 from doabench.framing import FrameSpec, frame_vad
 from doabench.geometry import SPEED_OF_SOUND, parse_resolution
 
-KINDS = ("srp", "srp_max", "gcc", "spectrogram")
+KINDS = EXTRACTOR_KINDS  # what FeatureExtractor computes; the one list is doabench.features.kinds
 # Precompute the exact-mode steering table only below this size; above it the table is rebuilt
 # per grid block on every call (cheap next to the beamformer product for many frames).
 _STEER_CACHE_BYTES = 256 << 20

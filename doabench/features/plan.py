@@ -1,0 +1,190 @@
+"""One observation pipeline: recording audio -> per-frame observations, named, shaped and spaced.
+
+An :class:`ObservationPlan` is a set of observation kinds (:data:`~doabench.features.kinds.OBSERVATION_KINDS`)
+on one array, frame grid and delay mode, with one or more SRP grids. It owns
+
+* the per-frame shape and the Gymnasium ``spaces.Box`` of each kind (what :class:`DoaEnv` declares);
+* the extractor passes: one :class:`~doabench.features.FeatureExtractor` pass per SRP resolution,
+  gcc and spectrogram riding on the first one (they share its STFT);
+* :meth:`ObservationPlan.compute`: audio ``(M, L)`` + sample VAD -> ``{name: (T, ...)}`` arrays;
+
+so that the environment, ``make-dataset``, ``doabench track``, the ONNX example input and the
+plots compute observations the same way. Names and dataset paths: :mod:`doabench.features.kinds`.
+
+torch is imported only by :meth:`~ObservationPlan.compute` and the extractor builders: building a
+plan to describe spaces (``gymnasium.make``) needs none.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+from gymnasium import spaces
+
+from doabench.arrays import MicArray, get_array
+from doabench.features.kinds import (
+    DEFAULT_RESOLUTION,
+    EXTRACTOR_KINDS,
+    FRAMED_KINDS,
+    MAP_KINDS,
+    check_kinds,
+    item_name,
+)
+from doabench.framing import FrameSpec, frame_signal
+
+#: What an extractor pass computes when a plan asks for framed audio only: the extractor still
+#: validates the audio and frames the VAD (the observations' ``vad``), as every other plan's does.
+VAD_ONLY_KINDS = ("srp_max",)
+
+
+def framed_audio(audio: np.ndarray, frame_spec: FrameSpec) -> np.ndarray:
+    """The ``audio`` observation: ``(M, L)`` samples -> ``(T, M, window)`` float32 frames.
+
+    A strided view of ``audio`` (no copy); the environment copies each frame it hands out.
+    """
+    frames = frame_signal(np.asarray(audio, np.float32), frame_spec.window, frame_spec.hop)  # (M, T, K)
+    return np.moveaxis(frames, 0, 1)
+
+
+class ObservationPlan:
+    """The observations ``kinds`` of recordings made with ``array``, framed by ``frame_spec``.
+
+    ``resolutions``: the SRP grids ``(n_theta, n_phi)``; srp and srp_max are computed on each, the
+    other kinds once. Spaces and :meth:`observations` describe the first grid. ``delays``: the
+    SRP delay mode (nearest, exact). ``spectrogram_frame_spec``: the spectrogram's own frame grid
+    (None: ``frame_spec``'s).
+
+    ``kinds`` are not validated here, so that every consumer keeps its own message for a bad
+    name (:func:`~doabench.features.kinds.check_kinds` is the environment's; the extractor raises
+    its own for kinds it cannot compute).
+    """
+
+    def __init__(self, kinds: Sequence[str], array: MicArray | str, frame_spec: FrameSpec,
+                 resolutions: Sequence[Sequence[int]] = (DEFAULT_RESOLUTION,), delays: str = "nearest",
+                 spectrogram_frame_spec: FrameSpec | None = None) -> None:
+        self.kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
+        self.array = get_array(array)
+        self.frame_spec = frame_spec
+        self.resolutions = tuple(tuple(r) for r in resolutions) or (DEFAULT_RESOLUTION,)
+        self.delays = delays
+        self.spectrogram_frame_spec = spectrogram_frame_spec
+        self._extractors: dict[tuple, Any] = {}
+
+    @classmethod
+    def for_tracker(cls, tracker: Any, array: MicArray | str, delays: str = "nearest") -> "ObservationPlan":
+        """The observations a tracker reads: its ``features``, ``resolution`` (default 16x32) and
+        ``frame_spec`` (the spectrogram on the same grid)."""
+        return cls(tracker.features, array, tracker.frame_spec, (tracker.resolution or DEFAULT_RESOLUTION,), delays)
+
+    # -- description ------------------------------------------------------------------------------
+    @property
+    def resolution(self) -> tuple[int, int]:
+        """The first SRP grid: the one of :meth:`spaces` and :meth:`observations`."""
+        return self.resolutions[0]
+
+    @property
+    def extractor_kinds(self) -> tuple[str, ...]:
+        """The kinds a FeatureExtractor computes (framed kinds are not); never empty."""
+        return tuple(k for k in self.kinds if k not in FRAMED_KINDS) or VAD_ONLY_KINDS
+
+    def names(self) -> list[str]:
+        """Canonical name of every item :meth:`compute` returns for ``kinds``, in pass order."""
+        out = [item_name(k, res) for ks, res in self.passes() for k in ks]
+        return out + [k for k in self.kinds if k in FRAMED_KINDS]
+
+    def passes(self) -> list[tuple[tuple[str, ...], tuple[int, int]]]:
+        """``(kinds, resolution)`` of each extractor pass: every extractor kind on the first grid,
+        then srp/srp_max on each further grid."""
+        first = self.extractor_kinds
+        maps = tuple(k for k in first if k in MAP_KINDS)
+        return [(first, self.resolution)] + ([(maps, r) for r in self.resolutions[1:]] if maps else [])
+
+    def frame_shape(self, kind: str) -> tuple[int, ...]:
+        """Per-frame shape of ``kind`` (without the frame axis) on the first grid."""
+        fs, m = self.frame_spec, self.array.n_mics
+        shapes = {
+            "srp": tuple(self.resolution),
+            "srp_max": (2,),
+            "gcc": (len(self.array.pairs), 2 * self.array.max_lag(fs.fs) + 1),
+            "spectrogram": (2 * m, (self.spectrogram_frame_spec or fs).window // 2),
+            "audio": (m, fs.window),
+        }
+        return shapes[kind]
+
+    def space(self, kind: str) -> spaces.Box:
+        """The Gymnasium box of one frame of ``kind`` (float32)."""
+        low, high = {
+            # mean removed and divided by the maximum: the maximum is 1, the minimum has no bound
+            "srp": (-np.inf, 1.0),
+            "srp_max": (0.0, 1.0),
+            # PHAT-weighted: a mean of unit phasors, so |R| <= 1
+            "gcc": (-1.0, 1.0),
+            "spectrogram": (-1.0, 1.0),
+            "audio": (-np.inf, np.inf),
+        }[kind]
+        return spaces.Box(low, high, self.frame_shape(kind), np.float32)
+
+    def observation_space(self) -> spaces.Dict:
+        """``{kind: Box}`` for each of ``kinds`` plus ``vad``: ``Discrete(2)``."""
+        space: dict[str, spaces.Space] = {k: self.space(k) for k in self.kinds}
+        space["vad"] = spaces.Discrete(2)
+        return spaces.Dict(space)
+
+    # -- computation ------------------------------------------------------------------------------
+    def extractor(self, array: MicArray | None = None, kinds: Sequence[str] | None = None,
+                  resolution: Sequence[int] | None = None):
+        """The (cached) :class:`~doabench.features.FeatureExtractor` of one pass for ``array``
+        (default: the plan's; a recording may bring its own measured geometry)."""
+        from doabench.features.transforms import FeatureExtractor
+
+        array = array or self.array
+        kinds = self.extractor_kinds if kinds is None else tuple(kinds)
+        resolution = self.resolution if resolution is None else tuple(resolution)
+        key = (array.positions.tobytes(), kinds, resolution)
+        if key not in self._extractors:
+            self._extractors[key] = FeatureExtractor(array, kinds=kinds, resolution=resolution, mode=self.delays,
+                                                     frame_spec=self.frame_spec,
+                                                     spectrogram_frame_spec=self.spectrogram_frame_spec)
+        return self._extractors[key]
+
+    def streaming_extractor(self, array: MicArray | None = None):
+        """A :class:`~doabench.features.StreamingFeatureExtractor` of the first pass (one grid)."""
+        from doabench.features.streaming import StreamingFeatureExtractor
+
+        return StreamingFeatureExtractor(array or self.array, kinds=self.extractor_kinds, resolution=self.resolution,
+                                         mode=self.delays, frame_spec=self.frame_spec,
+                                         spectrogram_frame_spec=self.spectrogram_frame_spec)
+
+    def compute(self, audio: np.ndarray, sample_vad: np.ndarray | None, array: MicArray | None = None,
+                device: str | None = None) -> dict[str, np.ndarray]:
+        """Observations of one recording, ``{name: (T, ...)}`` numpy arrays keyed by :meth:`names`.
+
+        ``audio``: ``(M, L)``; ``sample_vad``: ``(L,)`` bool/0-1, None for all active (features of
+        silent frames are zero). Extractor outputs are float32 (``srp:RxC (T, R, C)``,
+        ``srp_max:RxC (T, 2)``, ``gcc (T, P, lags)``, ``spectrogram (T, 2M, K/2)``), ``audio``
+        is ``(T, M, window)`` float32 (a view of ``audio``), ``vad (T,)`` int64 is the first
+        pass's frame VAD (and ``spectrogram_vad`` when the spectrogram has its own grid).
+        """
+        import torch
+
+        x = torch.as_tensor(np.ascontiguousarray(audio), dtype=torch.float32, device=device)[None]
+        vad = None if sample_vad is None else torch.as_tensor(np.asarray(sample_vad, bool), device=device)[None]
+        out: dict[str, np.ndarray] = {}
+        with torch.inference_mode():
+            for kinds, res in self.passes():
+                feats = self.extractor(array, kinds, res)(x, vad)
+                for key, value in feats.items():
+                    # the VADs are the same in every pass: the first one's is kept
+                    out.setdefault(item_name(key, res), value[0].detach().cpu().numpy())
+        if "audio" in self.kinds:
+            out["audio"] = framed_audio(audio, self.frame_spec)
+        out["vad"] = out["vad"].astype(np.int64)
+        return out
+
+    def observations(self, audio: np.ndarray, sample_vad: np.ndarray | None, array: MicArray | None = None,
+                     device: str | None = None) -> dict[str, np.ndarray]:
+        """:meth:`compute` keyed by kind (``srp`` rather than ``srp:16x32``), as environments and
+        trackers read them: ``{kind: (T, ...)}`` plus ``vad (T,)`` int64. One grid only."""
+        if len(self.resolutions) > 1:
+            raise ValueError("observations() describes one SRP grid; use compute() for several")  # a doabench bug
+        return {name.partition(":")[0]: v for name, v in self.compute(audio, sample_vad, array, device).items()}
