@@ -2,8 +2,8 @@
 
 The episode comes from the task's episode source, so it is a pure function of (task spec, i):
 the same whatever the number of episodes, the shard, the worker count or resumes. Features are
-computed with :class:`doabench.features.FeatureExtractor`, exactly as :class:`DoaEnv` computes
-them (one extractor per srp resolution; gcc and spectrogram share the first one's pass).
+computed by the same :class:`doabench.features.ObservationPlan` as :class:`DoaEnv` uses (one
+extractor pass per srp resolution; gcc and spectrogram share the first one's pass).
 """
 from __future__ import annotations
 
@@ -14,10 +14,13 @@ import numpy as np
 
 from doabench.arrays import MicArray, get_array
 from doabench.datasets.layout import EpisodeRecord
-from doabench.datasets.schema import HALF_KINDS, TRUTH_KEYS, FeatureRequest
+from doabench.datasets.schema import TRUTH_KEYS, FeatureRequest
 from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
 from doabench.errors import InputError
+from doabench.features.kinds import DEFAULT_RESOLUTION, EXTRACTOR_KINDS, HALF_KINDS, MAP_KINDS, storage_path
+from doabench.features.plan import ObservationPlan
+from doabench.framing import FrameSpec
 
 
 @contextlib.contextmanager
@@ -33,6 +36,19 @@ def one_thread() -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(previous)
+
+
+def requests_plan(requests: Sequence[FeatureRequest], array: MicArray, frame_spec: FrameSpec, delays: str = "nearest"
+                  ) -> ObservationPlan | None:
+    """The observation plan of the computed features of ``requests`` (None when only audio is
+    stored: then nothing is computed): srp and srp_max on every requested srp grid, gcc and
+    spectrogram once."""
+    srp = [r.resolution for r in requests if r.kind in MAP_KINDS]
+    once = tuple(r.kind for r in requests if r.kind in EXTRACTOR_KINDS and r.kind not in MAP_KINDS)
+    kinds = (MAP_KINDS if srp else ()) + once
+    if not kinds:
+        return None
+    return ObservationPlan(kinds, array, frame_spec, srp or (DEFAULT_RESOLUTION,), delays)
 
 
 class EpisodeComputer:
@@ -56,48 +72,20 @@ class EpisodeComputer:
         self.frame_spec = spec.frames
         self.array = get_array(spec.array)
         self.source = source if source is not None else make_episode_source(spec, device=device, **source_options)
-        self._extractors: dict[tuple, Any] = {}
+        self.plan = requests_plan(self.requests, self.array, self.frame_spec, delays)
 
     def __len__(self) -> int:
         return len(self.source)
 
-    def _plan(self) -> list[tuple[tuple[str, ...], tuple[int, int]]]:
-        """(kinds, resolution) of each extractor pass."""
-        srp = [r.resolution for r in self.requests if r.kind == "srp"]
-        other = tuple(r.kind for r in self.requests if r.kind in ("gcc", "spectrogram"))
-        if not srp:
-            return [(other, (16, 32))] if other else []
-        passes = [(("srp", "srp_max") + other, srp[0])]
-        passes += [(("srp", "srp_max"), res) for res in srp[1:]]
-        return passes
-
-    def _extractor(self, array: MicArray, kinds: tuple[str, ...], resolution: tuple[int, int]):
-        from doabench.features import FeatureExtractor
-
-        key = (array.positions.tobytes(), kinds, resolution)
-        if key not in self._extractors:
-            self._extractors[key] = FeatureExtractor(array, kinds=kinds, resolution=resolution, mode=self.delays,
-                                                     frame_spec=self.frame_spec)
-        return self._extractors[key]
-
     def features(self, audio: np.ndarray, sample_vad: np.ndarray, array: MicArray) -> dict[str, np.ndarray]:
         """Stored feature arrays ``{path: (T, ...)}`` of one episode's audio ``(M, L)``."""
-        import torch
-
+        if self.plan is None:
+            return {}
+        items = self.plan.compute(audio, sample_vad, array, self.device)
         out: dict[str, np.ndarray] = {}
-        if not self._plan():
-            return out
-        x = torch.as_tensor(np.ascontiguousarray(audio), dtype=torch.float32, device=self.device)[None]
-        v = torch.as_tensor(np.asarray(sample_vad, bool), device=self.device)[None]
-        for kinds, res in self._plan():
-            with torch.no_grad():
-                feats = self._extractor(array, kinds, res)(x, v)
-            r = f"{res[0]}x{res[1]}"
-            for kind in kinds:
-                arr = feats[kind][0].detach().cpu().numpy()
-                path = f"features/{kind}_{r}" if kind in ("srp", "srp_max") else f"features/{kind}"
-                dtype = np.float16 if (self.float16 and kind in HALF_KINDS) else np.float32
-                out[path] = arr.astype(dtype, copy=False)
+        for name in self.plan.names():
+            dtype = np.float16 if (self.float16 and name.partition(":")[0] in HALF_KINDS) else np.float32
+            out[storage_path(name)] = items[name].astype(dtype, copy=False)
         return out
 
     def compute(self, index: int) -> EpisodeRecord:

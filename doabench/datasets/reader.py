@@ -14,6 +14,7 @@ from doabench.arrays import MicArray
 from doabench.datasets.layout import is_complete, read_metadata
 from doabench.datasets.schema import EPISODES, TRUTH_KEYS, episode_name, loads_attr, open_h5, parse_feature
 from doabench.errors import InputError, NotFoundError
+from doabench.features.kinds import MAP_KINDS, item_name, storage_path
 from doabench.framing import FrameSpec
 
 
@@ -107,13 +108,13 @@ class DatasetFile:
         if name in self.items:
             return name
         kind, sep, res = str(name).partition(":")
-        if kind in ("srp", "srp_max"):
+        if kind in MAP_KINDS:
             if not sep:
                 cands = [i for i in self.items if i.split(":")[0] == kind]
                 if len(cands) == 1:
                     return cands[0]
             else:
-                canonical = f"{kind}:{parse_feature('srp:' + res).name.split(':')[1]}"
+                canonical = item_name(kind, parse_feature('srp:' + res).resolution)
                 if canonical in self.items:
                     return canonical
         raise NotFoundError(f"{self.path} does not store feature {name!r} (it has {', '.join(self.items) or 'none'})")
@@ -121,10 +122,7 @@ class DatasetFile:
     @staticmethod
     def item_path(item: str) -> str:
         """Path of a stored item inside an episode group."""
-        kind, _, res = item.partition(":")
-        if kind in ("srp", "srp_max"):
-            return f"features/{kind}_{res}"
-        return "audio" if kind == "audio" else f"features/{kind}"
+        return storage_path(item)
 
     # -- episodes ----------------------------------------------------------------------------------
     def group(self, index: int):

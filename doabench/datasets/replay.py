@@ -26,7 +26,9 @@ from doabench.datasets.reader import DatasetFile
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import InputError, NotFoundError
-from doabench.framing import FrameSpec, frame_signal
+from doabench.features.kinds import item_names
+from doabench.features.plan import framed_audio
+from doabench.framing import FrameSpec
 
 PREFIX = "file:"
 KIND = "dataset"
@@ -109,8 +111,7 @@ class DatasetEpisodes:
 
     def stored_names(self, kinds: Sequence[str], resolution: tuple[int, int]) -> list[str] | None:
         """The stored item of each environment feature kind, or None when one is missing."""
-        r = f"{resolution[0]}x{resolution[1]}"
-        names = [f"{k}:{r}" if k in ("srp", "srp_max") else k for k in kinds]
+        names = item_names(kinds, resolution)
         return names if all(n in self.file.items for n in names) else None
 
     def stored_features(self, j: int, kinds: Sequence[str], resolution: tuple[int, int], frame_spec: FrameSpec,
@@ -131,7 +132,7 @@ class DatasetEpisodes:
         stored = self.file.read(index, names)
         feats = {k: np.asarray(stored[n], np.float32) for k, n in zip(kinds, names)}
         if "audio" in feats:  # the environment's audio observation is framed: (T, M, window)
-            feats["audio"] = np.moveaxis(frame_signal(feats["audio"], frame_spec.window, frame_spec.hop), 0, 1)
+            feats["audio"] = framed_audio(feats["audio"], frame_spec)
         truth = self.file.truth(index)
         feats["vad"] = truth["vad"].astype(np.int64)
         g = self.file.group(index)

@@ -27,16 +27,17 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from doabench.errors import ConfigError, InputError, NotFoundError
+from doabench.features.kinds import HALF_KINDS  # noqa: F401  (re-exported: the schema's float16 kinds)
+from doabench.features.kinds import DATASET_KINDS, FEATURES_GROUP, MAP_KINDS, item_name, storage_path
 
 SCHEMA = "doabench.dataset/1"
 SCHEMA_PREFIX = "doabench.dataset/"
 EPISODES = "episodes"
-FEATURES = "features"
+FEATURES = FEATURES_GROUP
 TRUTH_KEYS = ("directions", "elevation", "azimuth", "times")
-KINDS = ("srp", "gcc", "spectrogram", "audio")
+# What --features requests, and HALF_KINDS what --float16 halves: doabench.features.kinds' lists.
+KINDS = DATASET_KINDS
 DEFAULT_FEATURES = "srp:16x32"
-# Maps that the --float16 option stores as half precision (srp_max and audio stay float32).
-HALF_KINDS = ("srp", "gcc", "spectrogram")
 COMPRESSIONS = ("gzip", "lzf", "none")
 
 
@@ -55,16 +56,12 @@ class FeatureRequest:
     @property
     def name(self) -> str:
         """Canonical text form: ``srp:16x32``, ``gcc``, ``spectrogram``, ``audio``."""
-        return f"{self.kind}:{self.resolution[0]}x{self.resolution[1]}" if self.resolution else self.kind
+        return item_name(self.kind, self.resolution)
 
     def stored(self) -> dict[str, str]:
         """Item name -> path inside an episode group of everything this request stores."""
-        if self.kind == "srp":
-            r = f"{self.resolution[0]}x{self.resolution[1]}"
-            return {f"srp:{r}": f"{FEATURES}/srp_{r}", f"srp_max:{r}": f"{FEATURES}/srp_max_{r}"}
-        if self.kind == "audio":
-            return {"audio": "audio"}
-        return {self.kind: f"{FEATURES}/{self.kind}"}
+        kinds = MAP_KINDS if self.kind in MAP_KINDS else (self.kind,)  # an srp map comes with its maximum
+        return {name: storage_path(name) for name in (item_name(k, self.resolution) for k in kinds)}
 
 
 _RES = re.compile(r"^(\d+)x(\d+)$")

@@ -22,6 +22,7 @@ from torch.utils.data import Dataset
 from doabench.acoustics.trajectories import sample_directions
 from doabench.envs.sources import episode_seed
 from doabench.errors import ConfigError
+from doabench.features.kinds import item_names
 from doabench.framing import FrameSpec, frame_mean_directions, frame_vad
 from doabench.training.cache import MAX_ATTEMPTS, TrajectoryCache
 
@@ -154,7 +155,7 @@ class DatasetItems(Dataset):
 
         res = None if resolution is None else "%dx%d" % tuple(resolution)
         self.kinds = kinds
-        names = [f"{k}:{res}" if k in ("srp", "srp_max") and res else k for k in kinds]
+        names = item_names(kinds, res)
         self.dataset = EpisodeDataset(path, features=names)
         self.names = names
         order = np.random.default_rng(episode_seed(base_seed, epoch)).permutation(len(self.dataset))

@@ -1,0 +1,152 @@
+"""ObservationPlan: the one list of kinds, names and dataset paths, spaces, and compute() equal to the
+FeatureExtractor; DoaEnv and make-dataset's EpisodeComputer compute through it."""
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+import doabench
+from doabench.arrays import get_array
+from doabench.datasets import schema
+from doabench.datasets.compute import EpisodeComputer, requests_plan
+from doabench.envs import env as env_module
+from doabench.envs.env import DoaEnv
+from doabench.errors import ConfigError
+from doabench.features import FeatureExtractor, ObservationPlan, transforms
+from doabench.features.kinds import (
+    EXTRACTOR_KINDS,
+    FRAMED_KINDS,
+    HALF_KINDS,
+    OBSERVATION_KINDS,
+    item_name,
+    parse_item_name,
+    storage_path,
+)
+from doabench.features.plan import framed_audio
+from doabench.framing import FrameSpec
+
+SPEC = FrameSpec(1024)
+
+
+def _recording(seed=0, n_mics=12, samples=1024 + 768 * 9):
+    rng = np.random.default_rng(seed)
+    audio = (0.1 * rng.standard_normal((n_mics, samples))).astype(np.float32)
+    vad = np.ones(samples, bool)
+    vad[: samples // 3] = False  # silent frames must come out zeroed, as the extractor's
+    return audio, vad
+
+
+def test_one_kind_list_everywhere():
+    assert env_module.FEATURE_KINDS is OBSERVATION_KINDS
+    assert transforms.KINDS is EXTRACTOR_KINDS
+    assert schema.KINDS == tuple(k for k in OBSERVATION_KINDS if k != "srp_max")
+    assert schema.HALF_KINDS is HALF_KINDS
+    assert set(EXTRACTOR_KINDS) | set(FRAMED_KINDS) == set(OBSERVATION_KINDS)
+    assert doabench.ObservationPlan is ObservationPlan
+
+
+@pytest.mark.parametrize("name, parsed, path", [
+    ("srp:16x32", ("srp", (16, 32)), "features/srp_16x32"),
+    ("srp_max:8x16", ("srp_max", (8, 16)), "features/srp_max_8x16"),
+    ("gcc", ("gcc", None), "features/gcc"),
+    ("spectrogram", ("spectrogram", None), "features/spectrogram"),
+    ("audio", ("audio", None), "audio"),
+])
+def test_names_round_trip_and_paths(name, parsed, path):
+    assert parse_item_name(name) == parsed
+    assert item_name(*parsed) == name
+    assert storage_path(name) == path
+
+
+def test_bad_names():
+    with pytest.raises(ConfigError, match=r"unknown feature kind\(s\) \['mfcc'\]; choose from srp, srp_max"):
+        parse_item_name("mfcc")
+    with pytest.raises(ConfigError, match="takes no resolution"):
+        parse_item_name("gcc:4x8")
+    with pytest.raises(ConfigError, match="not of the form"):
+        parse_item_name("srp:big")
+
+
+def test_storage_paths_equal_the_schema_layout():
+    """The HDF5 layout of docs/hdf5-schema.md, as FeatureRequest.stored() gave it before the plan."""
+    requests = schema.parse_features("srp:4x8,srp:16x32,gcc,spectrogram,audio")
+    assert {n: p for r in requests for n, p in r.stored().items()} == {
+        "srp:4x8": "features/srp_4x8", "srp_max:4x8": "features/srp_max_4x8",
+        "srp:16x32": "features/srp_16x32", "srp_max:16x32": "features/srp_max_16x32",
+        "gcc": "features/gcc", "spectrogram": "features/spectrogram", "audio": "audio"}
+    plan = requests_plan(requests, get_array("nao"), SPEC)
+    assert plan.names() == ["srp:4x8", "srp_max:4x8", "gcc", "spectrogram", "srp:16x32", "srp_max:16x32"]
+    assert plan.passes() == [(("srp", "srp_max", "gcc", "spectrogram"), (4, 8)), (("srp", "srp_max"), (16, 32))]
+    assert requests_plan(schema.parse_features("audio"), get_array("nao"), SPEC) is None
+
+
+def test_spaces_match_what_the_environment_declared():
+    array = get_array("nao")
+    plan = ObservationPlan(OBSERVATION_KINDS, array, SPEC, ((8, 16),))
+    lags = 2 * array.max_lag(SPEC.fs) + 1
+    want = {
+        "srp": spaces.Box(-np.inf, 1.0, (8, 16), np.float32),
+        "srp_max": spaces.Box(0.0, 1.0, (2,), np.float32),
+        "gcc": spaces.Box(-1.0, 1.0, (len(array.pairs), lags), np.float32),
+        "spectrogram": spaces.Box(-1.0, 1.0, (2 * array.n_mics, SPEC.window // 2), np.float32),
+        "audio": spaces.Box(-np.inf, np.inf, (array.n_mics, SPEC.window), np.float32),
+        "vad": spaces.Discrete(2),
+    }
+    assert plan.observation_space() == spaces.Dict(want)
+    assert list(ObservationPlan(("gcc", "srp"), array, SPEC).observation_space().spaces) == ["gcc", "srp", "vad"]
+
+
+def test_compute_equals_the_extractor():
+    array = get_array("nao")
+    audio, vad = _recording()
+    plan = ObservationPlan(("srp", "srp_max", "gcc", "spectrogram", "audio"), array, SPEC, ((4, 8), (8, 16)))
+    items = plan.compute(audio, vad)
+    first = FeatureExtractor(array, kinds=EXTRACTOR_KINDS, resolution=(4, 8), frame_spec=SPEC)(audio, vad)
+    second = FeatureExtractor(array, kinds=("srp", "srp_max"), resolution=(8, 16), frame_spec=SPEC)(audio, vad)
+    for name, ref in [("srp:4x8", first["srp"]), ("srp_max:4x8", first["srp_max"]), ("gcc", first["gcc"]),
+                      ("spectrogram", first["spectrogram"]), ("srp:8x16", second["srp"]),
+                      ("srp_max:8x16", second["srp_max"])]:
+        np.testing.assert_array_equal(items[name], ref.numpy(), err_msg=name)
+    np.testing.assert_array_equal(items["vad"], first["vad"].numpy().astype(np.int64))
+    assert items["vad"].dtype == np.int64 and not items["vad"][:2].any()
+    np.testing.assert_array_equal(items["audio"], framed_audio(audio, SPEC))
+    assert items["audio"].shape == (len(items["vad"]), array.n_mics, SPEC.window)
+    np.testing.assert_array_equal(items["audio"][3, :, 5], audio[:, 3 * SPEC.hop + 5])
+    assert set(items) == set(plan.names()) | {"vad"}
+    with pytest.raises(ValueError, match="one SRP grid"):
+        plan.observations(audio, vad)
+
+
+def test_audio_only_still_frames_the_vad():
+    """Framed audio needs no extractor, but the extractor still gives the frame VAD."""
+    audio, vad = _recording()
+    plan = ObservationPlan(("audio",), "nao", SPEC)
+    assert plan.extractor_kinds == ("srp_max",)
+    obs = plan.observations(audio, vad)
+    assert obs["audio"].shape[1:] == (12, SPEC.window) and len(obs["vad"]) == len(obs["audio"])
+
+
+def test_environment_and_dataset_computer_use_the_plan(monkeypatch):
+    env = DoaEnv("sim-demo", features=("srp", "gcc"), resolution="4x8")
+    assert isinstance(env.plan, ObservationPlan)
+    assert env.plan.kinds == ("srp", "gcc") and env.plan.resolution == (4, 8)
+    assert env.observation_space == env.plan.observation_space()
+    computer = EpisodeComputer(doabench.get_task_spec("sim-demo"), schema.parse_features("srp:4x8,gcc"))
+    assert isinstance(computer.plan, ObservationPlan)
+    calls = []
+    original = ObservationPlan.compute
+
+    def spy(self, *args, **kwargs):
+        calls.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(ObservationPlan, "compute", spy)
+    audio, vad = _recording(samples=4096 + 3072 * 2)
+    stored = computer.features(audio, vad, computer.array)
+    assert calls == [computer.plan]
+    assert list(stored) == ["features/srp_4x8", "features/srp_max_4x8", "features/gcc"]
+
+
+def test_unknown_environment_kind_message():
+    with pytest.raises(ConfigError, match=r"unknown feature kind\(s\) \['mfcc'\]; choose from srp, srp_max, gcc, "
+                                          r"spectrogram, audio"):
+        DoaEnv("sim-demo", features=("srp", "mfcc"))
