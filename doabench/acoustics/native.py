@@ -144,10 +144,15 @@ def render(lib, src: np.ndarray, mic: np.ndarray, sign: np.ndarray, offset: np.n
     contiguous rows (its first ``n_out`` samples per row are written)."""
     P, M, I = src.shape[0], mic.shape[0], gain.shape[0]
     arrays = (src, mic, sign, offset, gain, table)
-    for a in arrays:
-        assert a.dtype == np.float32 and a.flags.c_contiguous
-    assert out.dtype == np.float32 and out.strides[-1] == 4 and out.strides[1] == out.shape[2] * 4
-    assert out.strides[0] == M * out.strides[1] and out.shape[:2] == (P, M) and out.shape[2] >= n_out
+    # Real checks, not asserts (python -O strips those): a wrong layout would write out of bounds.
+    if not all(a.dtype == np.float32 and a.flags.c_contiguous for a in arrays):
+        raise ValueError("image kernel inputs must be C-contiguous float32 arrays")
+    if (src.shape[1:], mic.shape[1:], sign.shape, offset.shape, table.shape) != (
+            (3,), (3,), (I, 3), (I, 3), (_OVER + 1, _TAP_STRIDE)):
+        raise ValueError("image kernel inputs have the wrong shapes")
+    if not (out.dtype == np.float32 and out.ndim == 3 and out.shape[:2] == (P, M) and out.shape[2] >= n_out >= 0
+            and out.strides == (M * out.shape[2] * 4, out.shape[2] * 4, 4)):
+        raise ValueError("image kernel output must be float32 (P, M, >= n_out) with contiguous rows")
     work = np.empty(4 * (I + _BLOCK), dtype=np.float32)
     lib.doabench_render_images(P, M, I, *(a.ctypes.data for a in arrays[:5]), float(reach2), float(scale),
                                table.ctypes.data, out.ctypes.data, n_out, out.shape[2], work.ctypes.data)
