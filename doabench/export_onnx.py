@@ -24,8 +24,7 @@ FORMATS = ("onnx",)
 
 def example_features(tracker: Any, n_frames: int = 12, seed: int = 0) -> dict[str, np.ndarray]:
     """Features of random audio on the tracker's frame grid and array: a realistic example input."""
-    from doabench.features import FeatureExtractor
-    from doabench.features.observations import extractor_kinds, recording_features
+    from doabench.features.plan import ObservationPlan
 
     spec = tracker.frame_spec
     array = getattr(tracker, "_array", None)
@@ -33,9 +32,7 @@ def example_features(tracker: Any, n_frames: int = 12, seed: int = 0) -> dict[st
         raise ConfigError(f"tracker {tracker.name!r} has no array to build an example input for")
     samples = spec.window + spec.hop * (n_frames - 1)
     audio = (0.1 * np.random.default_rng(seed).standard_normal((array.n_mics, samples))).astype(np.float32)
-    extractor = FeatureExtractor(array, kinds=extractor_kinds(tracker.features), resolution=tracker.resolution or (16, 32),
-                                 frame_spec=spec, spectrogram_frame_spec=spec)
-    return recording_features(extractor, audio, None, tracker.features, spec)
+    return ObservationPlan.for_tracker(tracker, array).observations(audio, None)
 
 
 def metadata(tracker: Any, tracker_id: str) -> dict[str, str]:

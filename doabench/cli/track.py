@@ -43,15 +43,12 @@ def recording_vad(audio: np.ndarray, fs: int) -> np.ndarray:
 def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | None, delays: str = "nearest",
                     device: str | None = None) -> dict[str, np.ndarray]:
     """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording."""
-    from doabench.features import FeatureExtractor
-    from doabench.features.observations import extractor_kinds, recording_features
+    from doabench.features.plan import ObservationPlan
     from doabench.runner import _guarded
     from doabench.runner.loop import track_frames
 
     spec = tracker.frame_spec
-    extractor = FeatureExtractor(array, kinds=extractor_kinds(tracker.features), resolution=tracker.resolution or (16, 32),
-                                 mode=delays, frame_spec=spec, spectrogram_frame_spec=spec)
-    feats = recording_features(extractor, audio, sample_vad, tracker.features, spec, device)
+    feats = ObservationPlan.for_tracker(tracker, array, delays).observations(audio, sample_vad, device=device)
     n = len(feats["vad"])
     _guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
 
@@ -74,15 +71,12 @@ def track_stream(tracker, array, chunks, delays: str = "nearest", device: str | 
     """
     import torch
 
-    from doabench.features.observations import extractor_kinds
-    from doabench.features.streaming import StreamingFeatureExtractor, _FrameStream
-    from doabench.framing import frame_signal
+    from doabench.features.plan import ObservationPlan, framed_audio
+    from doabench.features.streaming import _FrameStream
     from doabench.runner import _guarded, check_direction, check_directions
 
     spec = tracker.frame_spec
-    extractor = StreamingFeatureExtractor(array, kinds=extractor_kinds(tracker.features),
-                                          resolution=tracker.resolution or (16, 32), mode=delays, frame_spec=spec,
-                                          spectrogram_frame_spec=spec)
+    extractor = ObservationPlan.for_tracker(tracker, array, delays).streaming_extractor()
     framer = _FrameStream(spec) if "audio" in tracker.features else None
     _guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
     directions: list[np.ndarray] = []
@@ -98,7 +92,7 @@ def track_stream(tracker, array, chunks, delays: str = "nearest", device: str | 
                 a = torch.from_numpy(np.ascontiguousarray(audio, dtype=np.float32))[None]
                 seg = framer.push(a, torch.ones((1, a.shape[-1]), dtype=torch.bool))
                 feats["audio"] = (np.zeros((0, a.shape[1], spec.window), np.float32) if seg is None else
-                                  np.moveaxis(frame_signal(seg[0][0].numpy(), spec.window, spec.hop), 0, 1))
+                                  framed_audio(seg[0][0].numpy(), spec))
             feats["vad"] = np.asarray(feats["vad"]).astype(np.int64)
             vads.append(feats["vad"])
             if tracker.causal:

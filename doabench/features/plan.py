@@ -31,6 +31,7 @@ from doabench.features.kinds import (
     item_name,
 )
 from doabench.framing import FrameSpec, frame_signal
+from doabench.geometry import parse_resolution
 
 #: What an extractor pass computes when a plan asks for framed audio only: the extractor still
 #: validates the audio and frames the VAD (the observations' ``vad``), as every other plan's does.
@@ -49,7 +50,7 @@ def framed_audio(audio: np.ndarray, frame_spec: FrameSpec) -> np.ndarray:
 class ObservationPlan:
     """The observations ``kinds`` of recordings made with ``array``, framed by ``frame_spec``.
 
-    ``resolutions``: the SRP grids ``(n_theta, n_phi)``; srp and srp_max are computed on each, the
+    ``resolutions``: the SRP grids ``(n_theta, n_phi)`` or ``"16x32"``; srp and srp_max are computed on each, the
     other kinds once. Spaces and :meth:`observations` describe the first grid. ``delays``: the
     SRP delay mode (nearest, exact). ``spectrogram_frame_spec``: the spectrogram's own frame grid
     (None: ``frame_spec``'s).
@@ -65,7 +66,9 @@ class ObservationPlan:
         self.kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
         self.array = get_array(array)
         self.frame_spec = frame_spec
-        self.resolutions = tuple(tuple(r) for r in resolutions) or (DEFAULT_RESOLUTION,)
+        # "16x32" as trackers may declare it, or (n_theta, n_phi); the extractor validates the values
+        self.resolutions = tuple(parse_resolution(r) if isinstance(r, str) else tuple(r)
+                                 for r in resolutions) or (DEFAULT_RESOLUTION,)
         self.delays = delays
         self.spectrogram_frame_spec = spectrogram_frame_spec
         self._extractors: dict[tuple, Any] = {}

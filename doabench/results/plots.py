@@ -277,8 +277,7 @@ def srp_maps(task: str, episode: int, frame: int, resolutions: Sequence[tuple[in
     Returns ``maps`` ({resolution: map}), ``direction`` (true DOA (3,)), ``active`` (frame is
     voice-active), ``episode`` and ``array``."""
     from doabench.envs.env import DoaEnv
-    from doabench.features import FeatureExtractor
-    from doabench.features.observations import recording_features
+    from doabench.features.plan import ObservationPlan
 
     env = DoaEnv(task, features=("srp",), resolution=resolutions[0], delays=delays, **source_options)
     if not 0 <= episode < env.n_episodes:
@@ -291,8 +290,8 @@ def srp_maps(task: str, episode: int, frame: int, resolutions: Sequence[tuple[in
     array = ep.array or env.array
     maps = {}
     for res in resolutions:
-        extractor = FeatureExtractor(array, kinds=("srp",), resolution=res, mode=delays, frame_spec=env.frame_spec)
-        maps[tuple(res)] = recording_features(extractor, ep.audio, ep.sample_vad, ("srp",), env.frame_spec)["srp"][frame]
+        plan = ObservationPlan(("srp",), array, env.frame_spec, (res,), delays)
+        maps[tuple(res)] = plan.observations(ep.audio, ep.sample_vad)["srp"][frame]
     return {"maps": maps, "direction": truth["directions"][frame], "active": bool(truth["vad"][frame]),
             "episode": ep, "array": array}
 
