@@ -12,6 +12,7 @@ Modules (docs/models.md describes the architectures and how they match Table I):
 * ``trackers``  – the registered trackers (importing it registers them; doabench finds them
   through the ``doabench.trackers`` entry points)
 
-This package uses only doabench's public API (``doabench`` and ``doabench.errors``), as a
-third-party plugin would.
+This package uses only doabench's public API (``doabench``, ``doabench.errors`` and
+``doabench.trackers``), as a third-party plugin would. torch is imported when a tracker is built,
+not when doabench lists the registered trackers.
 """

@@ -22,23 +22,22 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Any, ClassVar, Mapping
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping
 
 import numpy as np
-import torch
-from torch import nn
 
 import doabench
 from doabench.errors import ConfigError, TrackerError
 
-from .cnn1d import CausalCnn1d
-from .cnn2d import SpecCnn2d
-from .cross3d import Cross3D, cross3d_input
-from .layers import count_parameters, receptive_field_seconds
-from .seldnet import Seldnet
-from .streaming import StreamingRunner
 from .weights import (check_array, check_metadata, load_into, load_weights, make_metadata, parse_resolution,
                       read_metadata, resolution_text, save_weights, sha256_file, shipped_resolutions, shipped_weights)
+
+# torch and the model modules are imported where a tracker is built or run, not at import time:
+# doabench loads this module to list the registered trackers (`doabench list trackers`), which
+# then needs no torch (0.6 s instead of 3 s here).
+if TYPE_CHECKING:
+    import torch
+    from torch import nn
 
 _INITIAL_DIRECTION = np.array([1.0, 0.0, 0.0])  # until the network gives a usable direction
 _RANDOM = ("random", "none", "false", "")  # weights=random (or none/false) forces random init
@@ -46,6 +45,8 @@ _TRACK_CHUNK = 64  # frames per forward pass in track(): bounds memory on long e
 
 
 def _device(text: str) -> torch.device:
+    import torch
+
     try:
         device = torch.device(text)
     except (RuntimeError, TypeError):
@@ -86,6 +87,10 @@ class NeuralTracker(doabench.Tracker):
         feats = meta.get("features", {})
         self._frame_spec = (doabench.FrameSpec(feats["window"], feats["hop"], feats["fs"])
                             if self._meta is not None else self.default_frame_spec)
+        import torch
+
+        from .streaming import StreamingRunner
+
         with torch.random.fork_rng(devices=[]):  # reproducible random init, global RNG untouched
             torch.manual_seed(int(seed))
             self.model = self.build_model()
@@ -165,9 +170,13 @@ class NeuralTracker(doabench.Tracker):
         return self._hash
 
     def parameter_count(self) -> int:
+        from .layers import count_parameters
+
         return count_parameters(self.model)
 
     def describe(self) -> dict[str, Any]:
+        from .layers import receptive_field_seconds
+
         d = super().describe()
         rf = self.receptive_field_frames
         fs = self.frame_spec
@@ -248,9 +257,11 @@ class NeuralTracker(doabench.Tracker):
         if self._runner is None:
             return super().step(observation)  # offline model: the base class says to use track()
         y = self._runner.step(self.frame_input(observation))[0]
-        return self._direction(y.detach().to("cpu", torch.float64).numpy())
+        return self._direction(y.detach().double().cpu().numpy())
 
     def track(self, episode: Mapping[str, np.ndarray]) -> np.ndarray:
+        import torch
+
         n = len(episode["vad"])
         if n == 0:
             return np.zeros((0, 3))
@@ -283,6 +294,8 @@ class NeuralTracker(doabench.Tracker):
         return self._last.copy()
 
     def _tensor(self, a: np.ndarray) -> torch.Tensor:
+        import torch
+
         return torch.as_tensor(np.asarray(a, dtype=np.float32), device=self.device)
 
 
@@ -299,6 +312,8 @@ class Cross3DTracker(NeuralTracker):
         return shipped[-1] if shipped else (8, 16)
 
     def build_model(self) -> nn.Module:
+        from .cross3d import Cross3D
+
         return Cross3D(*self._resolution)
 
     def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
@@ -306,6 +321,8 @@ class Cross3DTracker(NeuralTracker):
         if tuple(srp.shape[2:]) != self._resolution:
             raise ConfigError(f"tracker {self.name!r} expects {resolution_text(self._resolution)} maps, "
                               f"got {'x'.join(map(str, srp.shape[2:]))}")
+        from .cross3d import cross3d_input
+
         x = cross3d_input(srp, features["srp_max"])  # (B, T, 3, n_theta, n_phi)
         return x.transpose(1, 2)
 
@@ -322,6 +339,8 @@ class MaxCnn1dTracker(NeuralTracker):
         return (64, 128)
 
     def build_model(self) -> nn.Module:
+        from .cnn1d import CausalCnn1d
+
         return CausalCnn1d(2)
 
     def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
@@ -340,6 +359,8 @@ class GccCnn1dTracker(NeuralTracker):
     features = ("gcc",)
 
     def build_model(self) -> nn.Module:
+        from .cnn1d import CausalCnn1d
+
         self._gcc_shape = (len(self._array.pairs), _n_lags(self._array, self.frame_spec.fs))
         return CausalCnn1d(self._gcc_shape[0] * self._gcc_shape[1])
 
@@ -385,6 +406,8 @@ class SpecCnn2dTracker(_SpectrogramTracker):
     model_name = "spec-cnn2d"
 
     def build_model(self) -> nn.Module:
+        from .cnn2d import SpecCnn2d
+
         channels, bins = self._spec_shape()
         return SpecCnn2d(channels, bins)
 
@@ -403,5 +426,7 @@ class SeldnetTracker(_SpectrogramTracker):
     default_frame_spec = doabench.FrameSpec(window=512)
 
     def build_model(self) -> nn.Module:
+        from .seldnet import Seldnet
+
         channels, bins = self._spec_shape()
         return Seldnet(channels, bins)

@@ -23,15 +23,17 @@ import datetime
 import hashlib
 import json
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
-import torch
-from torch import nn
 
 import doabench
 from doabench.errors import ConfigError, DoabenchError, InputError, NotFoundError
 from doabench.trackers import parse_resolution
+
+if TYPE_CHECKING:  # torch is imported where tensors are handled: `doabench list trackers` needs none
+    import torch
+    from torch import nn
 
 FORMAT = "doabench-weights/1"
 METADATA_KEY = "doabench"
@@ -151,7 +153,7 @@ def check_tensors(state: Mapping[str, torch.Tensor], path: str | Path) -> None:
     for name, t in state.items():
         if not t.is_floating_point() or t.numel() == 0:
             continue
-        if not bool(torch.isfinite(t).all()):
+        if not bool(t.isfinite().all()):
             raise InputError(f"weights file {Path(path).name}: tensor {name!r} holds NaN or infinite values; "
                              "the file is damaged")
         worst = float(t.abs().max())

@@ -143,7 +143,8 @@ def test_broken_files_on_the_task_path_only_break_their_own_task(tmp_path):
         assert r.stderr.strip().splitlines()[-1].startswith("doabench describe: error:")
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["list", "tasks"], ["describe", "--tracker", "srp-max"]])
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["list", "tasks"], ["list", "trackers"],
+                                  ["describe", "--tracker", "srp-max"]])
 def test_commands_that_need_no_tensors_do_not_import_torch(argv):
     """Start-up: torch's import alone takes about 1.4 s; these commands never touch a tensor."""
     import subprocess
