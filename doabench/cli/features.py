@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from doabench.errors import ConfigError, NotFoundError
+from doabench.features.kinds import EXTRACTOR_KINDS, MAP_KINDS
 from doabench.results.files import atomic_path, write_text
 from doabench.framing import DEFAULT_FS, DEFAULT_WINDOW, FrameSpec
 
@@ -23,7 +24,7 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("features", help=HELP, description=HELP + ".")
     p.add_argument("recording", metavar="REC.wav", help="multichannel recording (one channel per microphone)")
     p.add_argument("--array", default="nao", help="built-in array name or JSON/YAML array file (default: nao)")
-    p.add_argument("--kind", default="srp", choices=("srp", "srp_max", "gcc", "spectrogram"), help="feature to compute (default: srp)")
+    p.add_argument("--kind", default="srp", choices=EXTRACTOR_KINDS, help="feature to compute (default: srp)")
     p.add_argument("--resolution", default="16x32", help="SRP grid N_THETAxN_PHI (default: 16x32)")
     p.add_argument("--delays", default="nearest", choices=("nearest", "exact"), help="SRP delay evaluation (default: nearest, as the paper)")
     p.add_argument("--window", type=int, default=DEFAULT_WINDOW, help=f"frame length K in samples (default: {DEFAULT_WINDOW})")
@@ -61,7 +62,7 @@ def _sidecar(args, extractor, result, sr: int, resampled: bool) -> dict:
         "silent_frames": "none zeroed (no VAD given)",
         "doabench_version": __version__,
     }
-    if args.kind in ("srp", "srp_max"):
+    if args.kind in MAP_KINDS:
         el, az = grid_angles(*extractor.resolution, planar=extractor.array.planar)
         meta.update(
             resolution="%dx%d" % extractor.resolution,
