@@ -1,0 +1,50 @@
+"""scripts/cross3d_targets.py: the issue's targets are read from results files, met or missed."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CELLS = [(0.0, 5.0), (0.3, 15.0), (0.9, 30.0)]
+
+
+def _write(folder: Path, task: str, stem: str, per_cell: list[float], nonsilent: float | None = None) -> None:
+    cells = {f"sim-t60-{t}-snr-{s}": {"t60": t, "snr": s, "rmsae_all": v} for (t, s), v in zip(CELLS, per_cell)}
+    pooled = sum(per_cell) / len(per_cell)
+    result = {"tracker": {"id": stem.replace("_", ":"), "weights_hash": "ab" * 32},
+              "task": {"id": task, "version": 1, "episodes_run": 60}, "cells": cells,
+              "summary": {"rmsae_all": pooled, "rmsae_nonsilent": nonsilent or pooled}}
+    (folder / f"{task}__{stem}.json").write_text(json.dumps(result))
+
+
+def _run(folder: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "cross3d_targets.py"), str(folder)],
+                          capture_output=True, text=True, timeout=60)
+
+
+def _grid(folder: Path, model: list[float]) -> None:
+    _write(folder, "sim-grid", "cross3d_16x32", model)
+    _write(folder, "sim-grid", "srp-max_16x32", [5.0, 12.0, 20.0])
+    _write(folder, "sim-grid", "srp-kalman_32x64", [4.0, 9.0, 15.0])
+    _write(folder, "sim-grid", "cross3d_4x8", [9.0, 9.0, 9.0])
+    _write(folder, "sim-grid", "max-cnn1d_64x128", [12.0, 12.0, 12.0])
+
+
+def test_targets_met(tmp_path):
+    _grid(tmp_path, [6.0, 8.0, 10.0])  # T60 0 may lose to srp-max; the others win
+    _write(tmp_path, "sim-pauses", "cross3d_16x32", [10.0] * 3, nonsilent=8.0)
+    _write(tmp_path, "sim-fan", "cross3d_16x32", [12.0] * 3, nonsilent=9.0)
+    r = _run(tmp_path)
+    assert r.returncode == 0 and "all targets met" in r.stdout, r.stdout + r.stderr
+
+
+def test_targets_missed_and_missing_are_listed(tmp_path):
+    _grid(tmp_path, [6.0, 13.0, 14.0])  # loses to srp-max at T60 0.3; pooled 11 > 10
+    _write(tmp_path, "sim-pauses", "cross3d_16x32", [20.0] * 3, nonsilent=8.0)
+    r = _run(tmp_path)
+    assert r.returncode == 1
+    for words in ("pooled sim-grid RMSAE 11.00 > 10", "vs srp-max:16x32 12.00", "sim-pauses: 20.00 > 1.5 x 8.00",
+                  "sim-fan results missing"):
+        assert words in r.stdout, r.stdout
