@@ -1,13 +1,13 @@
 """Reading a user's multichannel recording, with every check a user needs a clear message for."""
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
 from doabench.arrays import MicArray
 from doabench.errors import InputError, NotFoundError
+from doabench.resampling import rational_factors, resample
 
 
 def _existing_file(path: str | Path) -> Path:
@@ -33,14 +33,6 @@ def read_audio(path: str | Path) -> tuple[np.ndarray, int]:
     return np.ascontiguousarray(data.T), int(sr)
 
 
-def resample(x: np.ndarray, sr: int, fs: int) -> np.ndarray:
-    """Polyphase resampling (Kaiser-windowed anti-aliasing filter) of ``(channels, samples)``."""
-    from scipy.signal import resample_poly
-
-    g = math.gcd(sr, fs)
-    return resample_poly(x, fs // g, sr // g, axis=-1).astype(np.float32)
-
-
 def load_recording(path: str | Path, array: MicArray, fs: int, allow_resample: bool = False,
                    min_samples: int = 0) -> tuple[np.ndarray, bool]:
     """A recording checked against the array and the sample rate: ``((n_mics, samples), resampled)``.
@@ -59,7 +51,7 @@ def load_recording(path: str | Path, array: MicArray, fs: int, allow_resample: b
     if sr != fs:
         if not allow_resample:
             raise InputError(f"{path} is sampled at {sr} Hz, not {fs} Hz: pass --resample to convert it")
-        audio, resampled = resample(audio, sr, fs), True
+        audio, resampled = resample(audio, sr, fs).astype(np.float32), True
     if audio.shape[-1] < min_samples:
         raise InputError(f"{path} has {audio.shape[-1]} samples at {fs} Hz, shorter than one "
                          f"{min_samples}-sample window")
@@ -91,8 +83,7 @@ class Recording:
 
     def __init__(self, path: Path, n_channels: int, sr: int, n_in: int, fs: int) -> None:
         self.path, self.n_channels, self.sr, self.fs, self.n_in = path, n_channels, sr, fs, n_in
-        g = math.gcd(sr, fs)
-        self.up, self.down = fs // g, sr // g
+        self.up, self.down = rational_factors(sr, fs)
         self.resampled = sr != fs
         self.samples = -(-n_in * self.up // self.down)  # resample_poly's output length
 

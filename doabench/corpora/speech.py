@@ -32,6 +32,7 @@ import soundfile as sf
 
 from doabench.corpora.vad import clean_with_vad
 from doabench.errors import ConfigError, InputError, NotFoundError
+from doabench.resampling import resample
 
 LIBRISPEECH_ENV = "DOABENCH_LIBRISPEECH"
 LIBRISPEECH_SUBSETS = (
@@ -78,24 +79,13 @@ def _n_samples(duration_s: float, fs: int) -> int:
     return int(round(duration_s * fs))
 
 
-def _resample(x: np.ndarray, fs_in: int, fs_out: int) -> np.ndarray:
-    if fs_in == fs_out:
-        return x
-    from math import gcd
-
-    from scipy.signal import resample_poly
-
-    g = gcd(fs_in, fs_out)
-    return resample_poly(x, fs_out // g, fs_in // g)
-
-
 def _read_mono(path: Path, fs: int) -> np.ndarray:
     """A mono float64 signal at ``fs`` (channels averaged, resampled if needed)."""
     try:
         x, fs_file = sf.read(str(path), dtype="float64", always_2d=True)
     except (RuntimeError, sf.LibsndfileError) as exc:
         raise InputError(f"cannot read audio file {path}: {exc}") from None
-    return _resample(x.mean(axis=1), fs_file, fs)
+    return resample(x.mean(axis=1), fs_file, fs)
 
 
 def _finish(raw: np.ndarray, fs: int, info: dict[str, Any]) -> SpeechChunk:
@@ -257,7 +247,7 @@ class LibriSpeechSource:
 
 
 def _resampled_length(n: int, fs_in: int, fs_out: int) -> int:
-    """Length of :func:`_resample`'s output for ``n`` input samples (resample_poly's rule)."""
+    """Length of :func:`doabench.resampling.resample`'s output for ``n`` input samples (resample_poly's rule)."""
     if fs_in == fs_out:
         return n
     from math import gcd
@@ -348,7 +338,7 @@ class EmbeddedSpeechSource:
             if name not in by_name:
                 raise NotFoundError(f"embedded speech clip {name!r} does not exist (have {', '.join(sorted(by_name))})")
             x, cfs = by_name[name]
-            pieces += [_resample(x, cfs, fs), np.zeros(pause)]
+            pieces += [resample(x, cfs, fs), np.zeros(pause)]
         raw = np.concatenate(pieces)[start : start + length] if pieces else np.zeros(0)
         if len(raw) < length:
             raise ConfigError(f"embedded speech info describes {len(raw)} samples, needs {length}")

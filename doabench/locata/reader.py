@@ -33,7 +33,6 @@ Timing rules (docs/locata.md explains them with the reasons):
 """
 from __future__ import annotations
 
-import math
 import struct
 import warnings
 from pathlib import Path
@@ -48,6 +47,7 @@ from doabench.errors import ConfigError, InputError, NotFoundError
 from doabench.locata.layout import Recording, require
 from doabench.locata.tables import (Pose, TimeOrigin, read_pose, read_required_time, read_times, read_vad)
 from doabench.locata.truth import (array_frame_directions, coverage_mask, local_mic_positions, required_mask)
+from doabench.resampling import rational_factors, resample
 
 VAD_MODES = ("webrtc", "corpus", "auto")
 MIC_SPREAD_WARN_M = 0.005  # a rigid array's microphones should not wander by more than this
@@ -99,15 +99,12 @@ def read_wav(path: Path, what: str, expected_frames: int | None = None) -> tuple
     return data, int(fs)
 
 
-def resample(x: np.ndarray, fs_in: int, fs_out: int, axis: int = 0) -> tuple[np.ndarray, int, int]:
-    """Anti-aliased rational resampling: ``(y, up, down)`` with ``y = resample_poly(x, up, down)``."""
-    from scipy.signal import resample_poly
-
-    g = math.gcd(int(fs_in), int(fs_out))
-    up, down = int(fs_out) // g, int(fs_in) // g
-    if up == down == 1:
-        return np.asarray(x, dtype=np.float64), 1, 1
-    return resample_poly(x, up, down, axis=axis), up, down
+def _resample(x: np.ndarray, fs_in: int, fs_out: int) -> tuple[np.ndarray, int, int]:
+    """``(y, up, down)``: :func:`doabench.resampling.resample` along the sample axis (0) and its
+    factors (for provenance); float64 when the rates are equal."""
+    up, down = rational_factors(fs_in, fs_out)
+    y = resample(x, fs_in, fs_out, axis=0)
+    return (np.asarray(y, dtype=np.float64) if up == down == 1 else y), up, down
 
 
 def _choose_source(rec: Recording, source: str | None) -> str:
@@ -170,7 +167,7 @@ def _webrtc_vad(rec: Recording, name: str, origin: TimeOrigin, t_in: np.ndarray,
     src, fs_src = read_wav(rec.source_audio_file(name), "source signal", expected_frames=len(t_src))
     # The source's own clock: its samples are placed at the array's sample times (0 outside).
     on_array_clock = np.interp(t_in, t_src, src[:, 0], left=0.0, right=0.0)
-    y, _, _ = resample(on_array_clock, fs_in, fs_out)
+    y, _, _ = _resample(on_array_clock, fs_in, fs_out)
     return webrtc_vad(np.clip(y, -1.0, 1.0), fs_out)
 
 
@@ -193,7 +190,7 @@ def read_recording(rec: Recording, fs: int = 16000, vad: str = "auto", source: s
     req_t, req_valid = read_required_time(rec.required_time_file, origin)
     array, geometry_meta = _geometry(rec, array_pose, audio.shape[1])
 
-    y, up, down = resample(audio, fs_in, fs)
+    y, up, down = _resample(audio, fs_in, fs)
     positions = np.arange(y.shape[0]) * (down / up)  # input-sample position of each output sample
     t_out = np.interp(positions, np.arange(len(t_in)), t_in)
     take = np.minimum(np.rint(positions).astype(np.int64), len(t_in) - 1)
