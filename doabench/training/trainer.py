@@ -24,6 +24,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from doabench.errors import ConfigError, NotFoundError
+from doabench.geometry import great_circle_error
 from doabench.results.files import atomic_path, write_json, write_text
 from doabench.training import checkpoint as ckpt
 from doabench.training.cache import TrajectoryCache
@@ -31,7 +32,7 @@ from doabench.training.data import (CachedItems, DatasetItems, NetworkInputs, Si
                                     collate)
 from doabench.training.pipeline import (DEFAULT_CACHE_ROOT, cache_folder, ensure_cache, scene_distribution,
                                         speech_for_split)
-from doabench.training.protocol import check_trainable, training_defaults
+from doabench.training.protocol import check_trainable, feature_options, training_defaults
 from doabench.training.recipes import Recipe
 
 FeatureFn = Callable[[torch.Tensor, torch.Tensor], Mapping[str, torch.Tensor]]
@@ -104,9 +105,9 @@ def _one_thread_worker(_: int) -> None:
     torch.set_num_threads(1)
 
 def angular_errors_deg(estimates: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
-    """Great-circle angle in degrees between ``(..., 3)`` vectors (any length) and unit truth."""
-    cross = torch.linalg.norm(torch.cross(estimates, truth, dim=-1), dim=-1)
-    return torch.rad2deg(torch.atan2(cross, (estimates * truth).sum(-1)))
+    """Great-circle angle in degrees between ``(..., 3)`` vectors (any length) and the truth
+    (:func:`doabench.geometry.great_circle_error`, the metric every score uses)."""
+    return torch.rad2deg(great_circle_error(estimates, truth))
 
 
 class Trainer:
@@ -189,12 +190,12 @@ class Trainer:
         from doabench.arrays import get_array
         from doabench.features import FeatureExtractor
 
+        declared = feature_options(self.tracker)
         kwargs = {}
-        if getattr(self.tracker, "spectrogram_frame_spec", None) is not None:
-            kwargs["spectrogram_frame_spec"] = self.tracker.spectrogram_frame_spec
+        if declared["spectrogram_frame_spec"] is not None:
+            kwargs["spectrogram_frame_spec"] = declared["spectrogram_frame_spec"]
         extractor = FeatureExtractor(get_array(self.spec.array), kinds=tuple(self.tracker.features),
-                                     resolution=self.tracker.resolution or (16, 32),
-                                     mode=getattr(self.tracker, "delays", "nearest"),
+                                     resolution=self.tracker.resolution or (16, 32), mode=declared["delays"],
                                      frame_spec=self.frame_spec, **kwargs)
         return lambda audio, vad: extractor(audio, vad)
 
