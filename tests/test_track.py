@@ -88,10 +88,10 @@ def test_track_bad_outputs_are_refused_before_the_work(scene_dir, tmp_path, caps
     folder.mkdir()
     (tmp_path / "afile").write_text("x")
     calls = []
-    import doabench.cli.track as track_cli
+    import doabench.runner.recordings as recordings
 
-    monkeypatch.setattr(track_cli, "track_recording", lambda *a, **k: calls.append(1))
-    monkeypatch.setattr(track_cli, "track_stream", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr(recordings, "track_recording", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr(recordings, "track_stream", lambda *a, **k: calls.append(1))
     cases = [["--out", str(folder)], ["--out", str(tmp_path / "afile" / "x.csv")],
              ["--out", str(tmp_path / "o.csv"), "--plot", str(tmp_path / "x.xyz")]]
     for extra in cases:
@@ -165,7 +165,8 @@ def _bursty_recording(path, seconds: float, fs: int = 16000, channels: int = 12,
 def _offline_track_csv(rec, name: str, opts=(), resample: bool = False, vad: str = "webrtc") -> str:
     """What `doabench track` wrote before it streamed: the whole recording in memory."""
     from doabench.arrays import get_array
-    from doabench.cli.track import recording_vad, track_recording, track_table
+    from doabench.cli.track import track_table
+    from doabench.runner.recordings import recording_vad, track_recording
     from doabench.recording import load_recording
     from doabench.trackers.registry import make_tracker, parse_options
 

@@ -2,13 +2,14 @@
 
 * :mod:`doabench.runner.loop`: the episode loop (:func:`run_task`, :func:`track_frames`), the
   checks of a tracker's outputs;
+* :mod:`doabench.runner.recordings`: the same tracker calls on a user's recording
+  (``doabench track``), in memory or chunk by chunk;
 * :mod:`doabench.runner.journal`: the resume journal (``.partial.jsonl``) and the run lock;
 * :mod:`doabench.runner.summary`: the results dictionary (schema ``doabench.results/1``).
 """
 from doabench.runner.journal import run_lock
-from doabench.runner.loop import check_direction, check_directions, check_trained, guarded, run_task, track_frames
-
-_guarded = guarded  # the name doabench/cli/track.py imports
+from doabench.runner.loop import (check_direction, check_directions, check_trained, guarded, run_task, step_frame,
+                                  track_frames)
 
 __all__ = ["check_direction", "check_directions", "check_trained", "guarded", "run_lock", "run_task",
-           "track_frames"]
+           "step_frame", "track_frames"]

@@ -96,6 +96,12 @@ def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays:
                   delays=delays, frame_spec=frame_spec, device=device, **env_options)
 
 
+def step_frame(tracker: Tracker, observation: Any, t: int, where: str = "") -> np.ndarray:
+    """One causal step: ``tracker.step(observation)`` for frame ``t``, guarded and checked (a unit
+    vector ``(3,)``); ``where`` ends the error messages."""
+    return check_direction(tracker, guarded(tracker, f"step() at frame {t}{where}", tracker.step, observation), t)
+
+
 def track_frames(tracker: Tracker, n_frames: int, first: Any, advance: Callable[[int, np.ndarray], Any],
                  offline: Callable[[], dict], where: str = "") -> np.ndarray:
     """A reset tracker's ``(n_frames, 3)`` checked unit directions.
@@ -110,7 +116,7 @@ def track_frames(tracker: Tracker, n_frames: int, first: Any, advance: Callable[
     estimates = np.zeros((n_frames, 3))
     obs = first
     for t in range(n_frames):
-        estimates[t] = check_direction(tracker, guarded(tracker, f"step() at frame {t}{where}", tracker.step, obs), t)
+        estimates[t] = step_frame(tracker, obs, t, where)
         obs = advance(t, estimates[t])
     return estimates
 
