@@ -2,7 +2,10 @@
 from __future__ import annotations
 
 import math
+import os
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -139,3 +142,20 @@ def test_a_failed_build_falls_back(monkeypatch, tmp_path):
     monkeypatch.setattr(native, "FLAGS", ["--no-such-flag-xyz", *native.FLAGS])
     assert native.library() is None and "failed" in native.unavailable_reason()
     assert not any(tmp_path.rglob("*.so"))  # nothing half-written left behind
+
+
+@needs_kernel
+def test_a_damaged_cached_kernel_is_rebuilt(tmp_path):
+    """A cache file cut short (a crash while it was written by something else) is built again.
+    In fresh processes: a process that has loaded the library gets the loaded copy back."""
+    env = {**os.environ, "DOABENCH_CACHE": str(tmp_path)}
+    code = "from doabench.acoustics import native; print(native.kernel_name(), native.unavailable_reason())"
+
+    def kernel() -> str:
+        return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                              timeout=120).stdout.strip()
+
+    assert kernel() == "c"
+    (so,) = tmp_path.rglob("*.so")
+    so.write_bytes(so.read_bytes()[:100])
+    assert kernel() == "c" and so.stat().st_size > 100

@@ -95,7 +95,12 @@ def _load():
     try:
         if not target.exists():
             _build(cc, source, target)
-        lib = ctypes.CDLL(str(target))
+        try:
+            lib = ctypes.CDLL(str(target))
+        except OSError:  # a damaged cache file (e.g. cut short by a crash): build it again, once
+            target.unlink(missing_ok=True)
+            _build(cc, source, target)
+            lib = ctypes.CDLL(str(target))
     except (OSError, subprocess.SubprocessError) as exc:
         return None, f"building {SOURCE} failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
     if lib.doabench_image_kernel_version() != KERNEL_VERSION:
