@@ -187,16 +187,19 @@ class Trainer:
         return ckpt.load_checkpoint(path)
 
     def _default_features(self) -> FeatureFn:
+        """Batched features ``(B, M, L)`` audio -> ``{kind: (B, T, ...)}`` tensors on the training
+        device: the extractor of the tracker's :class:`~doabench.features.plan.ObservationPlan`
+        (the one the environment and make-dataset use), asked for the tracker's kinds as they are
+        so that a kind it cannot compute gets the extractor's own error."""
         from doabench.arrays import get_array
-        from doabench.features import FeatureExtractor
+        from doabench.features.kinds import DEFAULT_RESOLUTION
+        from doabench.features.plan import ObservationPlan
 
         declared = feature_options(self.tracker)
-        kwargs = {}
-        if declared["spectrogram_frame_spec"] is not None:
-            kwargs["spectrogram_frame_spec"] = declared["spectrogram_frame_spec"]
-        extractor = FeatureExtractor(get_array(self.spec.array), kinds=tuple(self.tracker.features),
-                                     resolution=self.tracker.resolution or (16, 32), mode=declared["delays"],
-                                     frame_spec=self.frame_spec, **kwargs)
+        plan = ObservationPlan(self.tracker.features, get_array(self.spec.array), self.frame_spec,
+                               (self.tracker.resolution or DEFAULT_RESOLUTION,), declared["delays"],
+                               declared["spectrogram_frame_spec"])
+        extractor = plan.extractor(kinds=tuple(self.tracker.features))
         return lambda audio, vad: extractor(audio, vad)
 
     def _val_cache(self) -> TrajectoryCache:
