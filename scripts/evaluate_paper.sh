@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# The paper comparison of issue 12, section 5, once the paper-scale models are shipped
+# (scripts/train_queue.sh): every tracker with its shipped weights on sim-grid (v1, 20 episodes
+# per T60 x SNR cell), sim-pauses and sim-fan, into results/ (resumable: `doabench sweep` skips
+# finished runs and resumes interrupted ones), then the leaderboards, the Fig. 6 / Fig. 8 plots
+# and the target check (scripts/cross3d_targets.py, exit status 1 while a target is missed).
+#
+#   nice -n 10 scripts/evaluate_paper.sh           # LibriSpeech: $DOABENCH_LIBRISPEECH or ../shared/data/LibriSpeech
+#
+# Cost on our 2-core machine: about 1 CPU-s per 20 s episode for simulation and features, so
+# roughly 6 CPU-min per tracker on sim-grid (360 episodes); run it with the machine otherwise idle.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+LIBRI="${DOABENCH_LIBRISPEECH:-../shared/data/LibriSpeech}"
+DOABENCH="${DOABENCH:-.venv/bin/doabench}"
+CLASSICAL="srp-max:4x8,srp-max:8x16,srp-max:16x32,srp-max:32x64,srp-max:64x128,srp-kalman:32x64"
+LEARNED="cross3d:4x8,cross3d:8x16,cross3d:16x32,gcc-cnn1d,max-cnn1d:64x128,spec-cnn2d,seldnet"
+
+"$DOABENCH" sweep --trackers "$CLASSICAL,$LEARNED" --tasks sim-grid,sim-pauses,sim-fan \
+    --librispeech "$LIBRI" --out results --leaderboard leaderboards --no-frames --quiet
+for metric in rmsae_nonsilent rmsae_all; do
+    fig=$([ "$metric" = rmsae_nonsilent ] && echo fig6-rmsae-nonsilent-vs-t60 || echo fig8-rmsae-all-vs-t60)
+    "$DOABENCH" plot rmsae-vs-t60 results/sim-grid__*.json --metric "$metric" --out "docs/img/$fig"
+done
+# Fig. 7 needs per-frame estimates, which the sweep leaves out (--no-frames: 10 MB per 360-episode
+# file otherwise): the first 46 episodes (episode 45: T60 0.9 s, SNR 5 dB) again, with frames.
+for t in srp-kalman:32x64 cross3d:16x32; do
+    "$DOABENCH" run --tracker "$t" --task sim-grid --episodes 46 --librispeech "$LIBRI" --out runs/fig7 --quiet
+done
+"$DOABENCH" plot episode runs/fig7/sim-grid__srp-kalman_32x64.json runs/fig7/sim-grid__cross3d_16x32.json \
+    --episode 45 --librispeech "$LIBRI" --out docs/img/fig7-episode-45
+.venv/bin/python scripts/cross3d_targets.py results
