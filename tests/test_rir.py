@@ -376,3 +376,21 @@ def test_pyroomacoustics_backend_uses_the_shared_tail():
     y = pra_sim.simulate(room, src, mics, x, FS, seed=9)
     ref = convolve_trajectory(torch.as_tensor(hp), torch.as_tensor(x)).numpy()
     assert np.allclose(y, ref, rtol=0, atol=1e-5 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("n_samples,n_tail,start", [(50_000, 3_000, 700), (9_000, 20_000, 10), (300, 40, 299),
+                                                   (40_000, 9_000, 0)])
+def test_tail_convolution_is_the_direct_convolution(n_samples, n_tail, start):
+    """The blocked overlap-add of the shared tail equals a plain convolution (float32 rounding),
+    for tails shorter and longer than a block and outputs shorter than one."""
+    from doabench.acoustics.simulators import add_tail_convolution_
+
+    rng = np.random.default_rng(n_tail)
+    x = rng.standard_normal(n_samples).astype(np.float32)
+    tail = rng.standard_normal((2, n_tail)).astype(np.float32)
+    base = rng.standard_normal((2, n_samples)).astype(np.float32)
+    out = add_tail_convolution_(torch.tensor(base), torch.tensor(x), torch.tensor(tail), start).numpy()
+    ref = base.astype(np.float64).copy()
+    for m in range(2):
+        ref[m, start:] += fftconvolve(x.astype(np.float64), tail[m].astype(np.float64))[: n_samples - start]
+    assert np.abs(out - ref).max() <= 1e-5 * np.abs(ref).max()
