@@ -40,4 +40,4 @@ for model in "${QUEUE[@]}"; do
     rm -f "$out/checkpoint.safetensors"
     printf 'exported %s to %s (sha256 %s) on %s\n' "$model" "$weights" "$sha" "$(date -u +%FT%TZ)" > "$out/exported.txt"
 done
-echo "== the queue is done: re-run the evaluation (docs/results.md)"
+echo "== the queue is done: run scripts/evaluate_paper.sh (docs/results.md)"
