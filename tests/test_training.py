@@ -302,3 +302,45 @@ def test_cpu_preset_without_a_cache_leaves_no_run_folder(tmp_path, capsys):
               "--cache-root", str(tmp_path / "nocache"), "--out", str(out), "--quiet"])
     assert rc == 2 and "--build-cache" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_compact_checkpoint_halves_moments_and_resumes(tmp_path):
+    """A compact run state (for committing): Adam moments and best weights in bfloat16, latest
+    weights exact; the optimiser loads it and keeps training."""
+    import random
+
+    from doabench.training import checkpoint as ckpt
+
+    torch.manual_seed(0)
+    net = torch.nn.Linear(64, 64)
+    opt = torch.optim.Adam(net.parameters(), 1e-3)
+    for _ in range(3):
+        opt.zero_grad()
+        net(torch.randn(8, 64)).square().mean().backward()
+        opt.step()
+    best = {k: v + 1 for k, v in net.state_dict().items()}
+    state = {"epoch": 3, "model": net.state_dict(), "best_model": best, "best_epoch": 2, "optimizer": opt.state_dict(),
+             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
+             "recipe": {}, "tracker": "t", "task": "sim-train", "history": [], "best": 1.0, "compute_s": 1.0,
+             "trajectories_seen": 3}
+    path = tmp_path / ckpt.LATEST
+    ckpt.save_checkpoint(path, state)
+    before, after = ckpt.compact_checkpoint(path)
+    assert after < 0.8 * before
+    loaded = ckpt.load_checkpoint(path)
+    assert loaded["compact"] is True and loaded["epoch"] == 3
+    assert all(torch.equal(loaded["model"][k], v) for k, v in net.state_dict().items())  # exact
+    moments = [v for p in loaded["optimizer"]["state"].values() for k, v in p.items() if k != "step"]
+    assert moments and all(v.dtype == torch.bfloat16 for v in moments)
+    assert all(v.dtype == torch.bfloat16 for v in loaded["best_model"].values())
+    for k, v in loaded["best_model"].items():
+        assert torch.allclose(v.float(), best[k], rtol=1e-2, atol=1e-3)
+    net2 = torch.nn.Linear(64, 64)
+    net2.load_state_dict(loaded["model"])
+    opt2 = torch.optim.Adam(net2.parameters(), 1e-3)
+    opt2.load_state_dict(loaded["optimizer"])
+    assert all(v.dtype == torch.float32 for p in opt2.state.values() for k, v in p.items() if k != "step")
+    opt2.zero_grad()
+    net2(torch.randn(8, 64)).square().mean().backward()
+    opt2.step()
+    assert all(torch.isfinite(p).all() for p in net2.parameters())

@@ -54,6 +54,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, help="torch CPU threads")
     p.add_argument("--max-epochs", type=int, help="stop after this many epochs in this invocation")
     p.add_argument("--export", metavar="FILE", help="export the run's weights to FILE (.safetensors) and exit")
+    p.add_argument("--compact", action="store_true",
+                   help="rewrite the run's checkpoint for committing (Adam moments and best weights in bfloat16, "
+                        "about 40%% smaller) and exit; a resume from it continues with rounded moments")
     p.add_argument("--export-from", choices=["best", "latest"], default="best", help="checkpoint to export")
     p.add_argument("--export-dtype", choices=["float32", "float16"], default="float32",
                    help="precision of the exported weights (float16 halves the file)")
@@ -93,6 +96,12 @@ def main(args: argparse.Namespace) -> int:
     options = parse_options(args.tracker_opt)
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.compact:
+        from doabench.training import checkpoint as ckpt
+
+        before, after = ckpt.compact_checkpoint(Path(args.out) / ckpt.LATEST)
+        print(f"compacted {Path(args.out) / ckpt.LATEST}: {before / 1e6:.1f} -> {after / 1e6:.1f} MB")
+        return 0
     if args.export:
         from doabench.training.export import export_weights
 

@@ -17,6 +17,13 @@ keys, wrong types and non-finite weights are refused with one line. A state is a
     {"epoch", "model": state_dict, "best_model": state_dict | None, "optimizer": state_dict,
      "rng": {"torch", "numpy", "python"}, ...the JSON values above}
 
+**Compact states for committing** (:func:`compact_checkpoint`, ``doabench train --out RUN
+--compact``): the Adam moments and the best epoch's weights stored as bfloat16, the latest
+weights stay float32. About 40 % smaller (Cross3D 16x32: 27 -> 17 MB; the 1D CNNs' moments are
+most of their 90-180 MB), for runs whose state is committed between sessions. A resume from it
+continues with the moments rounded to bfloat16 (Adam casts them back to float32); the best
+weights are only exported, where bfloat16 rounding moved scores by under 0.01 deg.
+
 Restoring the RNG states matters only for code that draws from the global generators: training
 items are seeded from ``(base_seed, epoch, item)`` anyway, so an epoch is the same whether it runs
 straight or after ``--resume``.
@@ -133,6 +140,27 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
                                                                has_gauss, gauss),
                       "python": (version, tuple(internal), py_gauss)})
     return state
+
+
+def compact_checkpoint(path: str | Path) -> tuple[int, int]:
+    """Rewrite the checkpoint at ``path`` in place (atomically) with its Adam moments and best
+    weights in bfloat16 (see the module docstring); returns the file sizes before and after."""
+    path = Path(path)
+    before = path.stat().st_size if path.is_file() else 0
+    state = load_checkpoint(path)
+
+    def half(t: torch.Tensor) -> torch.Tensor:
+        return t.to(torch.bfloat16) if t.is_floating_point() else t
+
+    for per_param in state["optimizer"]["state"].values():
+        for key, value in per_param.items():
+            if isinstance(value, torch.Tensor) and key != "step":
+                per_param[key] = half(value)
+    if state.get("best_model") is not None:
+        state["best_model"] = {k: half(v) for k, v in state["best_model"].items()}
+    state["compact"] = True
+    save_checkpoint(path, state)
+    return before, path.stat().st_size
 
 
 def best_weights(state: dict[str, Any]) -> dict[str, torch.Tensor]:
