@@ -344,3 +344,22 @@ def test_compact_checkpoint_halves_moments_and_resumes(tmp_path):
     net2(torch.randn(8, 64)).square().mean().backward()
     opt2.step()
     assert all(torch.isfinite(p).all() for p in net2.parameters())
+
+
+def test_resume_from_a_compact_state_continues_closely(tmp_path, caches):
+    """Committed (compact) run states resume: the next epoch runs from bf16-rounded moments and
+    ends close to the uninterrupted run."""
+    from doabench.training import checkpoint as ckpt
+
+    straight = make_trainer(tmp_path / "a", caches)
+    straight.run()
+    make_trainer(tmp_path / "b", caches, max_epochs=1).run()
+    ckpt.compact_checkpoint(tmp_path / "b" / ckpt.LATEST)
+    resumed = make_trainer(tmp_path / "b", caches, tiny_recipe(epochs=99), resume=True)
+    history = resumed.run()
+    assert [h["epoch"] for h in history] == [1, 2]
+    for k, v in straight.network.state_dict().items():
+        assert torch.allclose(v, resumed.network.state_dict()[k], rtol=1e-2, atol=1e-4), k
+    state = ckpt.load_checkpoint(tmp_path / "b" / ckpt.LATEST)  # written by the trainer again: float32
+    assert not state.get("compact") and all(
+        v.dtype == torch.float32 for p in state["optimizer"]["state"].values() for v in p.values())
