@@ -159,3 +159,21 @@ def test_a_damaged_cached_kernel_is_rebuilt(tmp_path):
     (so,) = tmp_path.rglob("*.so")
     so.write_bytes(so.read_bytes()[:100])
     assert kernel() == "c" and so.stat().st_size > 100
+
+
+@needs_kernel
+def test_a_read_only_cache_folder_falls_back_to_a_temp_folder(monkeypatch, tmp_path):
+    locked = tmp_path / "locked"
+    build = native._build
+
+    def refuse_locked(cc, source, target):  # what mkdir/compile into a read-only folder raise
+        if locked in target.parents:
+            raise PermissionError(13, "Permission denied", str(target.parent))
+        return build(cc, source, target)
+
+    monkeypatch.setattr(native, "_state", {})
+    monkeypatch.setenv("DOABENCH_CACHE", str(locked))
+    monkeypatch.setattr(native, "_build", refuse_locked)
+    monkeypatch.setattr(native.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
+    assert native.library() is not None, native.unavailable_reason()
+    assert any((tmp_path / "tmp").rglob("*.so")) and not locked.exists()

@@ -94,7 +94,12 @@ def _load():
     target = _cache_dir() / f"image_sources-{key}.so"
     try:
         if not target.exists():
-            _build(cc, source, target)
+            try:
+                _build(cc, source, target)
+            except PermissionError:  # a read-only cache folder (e.g. a locked-down home): a private temp one
+                target = Path(tempfile.gettempdir()) / f"doabench-native-{os.getuid()}" / target.name
+                if not target.exists():
+                    _build(cc, source, target)
         try:
             lib = ctypes.CDLL(str(target))
         except OSError:  # a damaged cache file (e.g. cut short by a crash): build it again, once
