@@ -125,6 +125,29 @@ def test_sphere_pad_is_circular_in_azimuth_and_reflecting_in_elevation():
     assert torch.equal(p, ref)
 
 
+def test_sphere_pad_matches_torch_padding_modes_in_values_and_gradients():
+    """On (batch, channels, frames, theta, phi) tensors, channels-last 3D too: the slices and
+    concatenations give F.pad's reflect/circular values and the same gradients."""
+    F = torch.nn.functional
+    torch.manual_seed(1)
+    for memory_format in (torch.contiguous_format, torch.channels_last_3d):
+        x = torch.randn(2, 3, 5, 6, 8).contiguous(memory_format=memory_format).requires_grad_()
+        y = x.detach().clone().requires_grad_()
+        for pt, pp in ((1, 1), (2, 2), (0, 3), (2, 0)):
+            ours = sphere_pad(x, pt, pp)
+            folded = y.reshape(-1, 1, 6, 8)
+            if pt:
+                folded = F.pad(folded, (0, 0, pt, pt), mode="reflect")
+            if pp:
+                folded = F.pad(folded, (pp, pp, 0, 0), mode="circular")
+            ref = folded.reshape(2, 3, 5, 6 + 2 * pt, 8 + 2 * pp)
+            assert torch.equal(ours, ref)
+            w = torch.randn_like(ref)
+            (gx,) = torch.autograd.grad((ours * w).sum(), x)
+            (gy,) = torch.autograd.grad((ref * w).sum(), y)
+            assert torch.allclose(gx, gy, rtol=0, atol=1e-6)
+
+
 def test_cross3d_is_equivariant_to_azimuth_rotation_before_pooling():
     """Circular azimuth padding: rotating the maps by 2^L cells rotates the first layer's output."""
     torch.manual_seed(0)
