@@ -29,7 +29,9 @@ from doabench.training.cache import MAX_ATTEMPTS, TrajectoryCache
 
 def frame_truth(trajectory: np.ndarray, array_position: np.ndarray, sample_vad: np.ndarray,
                 frame_spec: FrameSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame unit directions ``(T, 3)`` float32 and frame VAD ``(T,)`` bool."""
+    """Per-frame unit directions ``(T, 3)`` float32 and frame VAD ``(T,)`` bool of a cached
+    trajectory (no :class:`~doabench.episode.Episode`; rendered items use its ``frame_truth``,
+    which gives the same values from the same ``doabench.framing`` rules)."""
     n = len(sample_vad)
     dirs = frame_mean_directions(sample_directions(trajectory, array_position, n), frame_spec.window, frame_spec.hop)
     return dirs.astype(np.float32), np.asarray(frame_vad(sample_vad, frame_spec.window, frame_spec.hop), bool)
@@ -92,10 +94,13 @@ class SimulatedItems(Dataset):
         else:
             raise ConfigError(f"epoch {self.epoch} item {k}: no valid scene in {MAX_ATTEMPTS} draws")
         ep = render_scene(scene, self.speech, self.array, simulator=self.simulator)
-        truth, vad = frame_truth(scene.source_positions, scene.array_position, ep.sample_vad, self.frame_spec)
+        # The episode's own truth (its per-sample directions are the scene's, float64): the same
+        # values frame_truth() computes from the trajectory, without computing them again.
+        truth = ep.frame_truth(self.frame_spec)
         return {"audio": torch.from_numpy(np.ascontiguousarray(ep.audio, dtype=np.float32)),
                 "sample_vad": torch.from_numpy(np.asarray(ep.sample_vad, bool)),
-                "truth": torch.from_numpy(truth), "vad": torch.from_numpy(vad)}
+                "truth": torch.from_numpy(truth["directions"].astype(np.float32)),
+                "vad": torch.from_numpy(truth["vad"])}
 
 
 class NetworkInputs(Dataset):
