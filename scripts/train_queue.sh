@@ -14,10 +14,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 LIBRI="${DOABENCH_LIBRISPEECH:-../shared/data/LibriSpeech}"
 DOABENCH="${DOABENCH:-.venv/bin/doabench}"
-# The training process with one thread per core and passive OpenMP waits: 2.49-2.55 instead of
-# 2.27-2.33 trajectories/s for Cross3D 16x32 on our 2-core machine (docs/performance.md).
-THREADS="${TRAIN_THREADS:-$(nproc)}"
-export OMP_WAIT_POLICY="${OMP_WAIT_POLICY:-PASSIVE}"
 QUEUE=(cross3d:16x32 cross3d:8x16 cross3d:4x8 gcc-cnn1d max-cnn1d:64x128 spec-cnn2d seldnet)
 
 for model in "${QUEUE[@]}"; do
@@ -34,7 +30,7 @@ for model in "${QUEUE[@]}"; do
     echo "== $(date -u +%FT%TZ) $model -> $out ${resume[*]}"
     # returns once every epoch of the recipe is done (immediately for a finished run)
     "$DOABENCH" train --tracker "$model" --tracker-opt weights=random --librispeech "$LIBRI" \
-        --out "$out" --quiet --threads "$THREADS" "${resume[@]}"
+        --out "$out" --quiet "${resume[@]}"
     "$DOABENCH" train --tracker "$model" --tracker-opt weights=random --out "$out" --export "$weights"
     sha=$(sha256sum "$weights" | cut -d' ' -f1)
     rm -f "$out/checkpoint.safetensors"
