@@ -1,35 +1,57 @@
-"""Markdown table of a training run's progress from its log.csv (every Nth epoch and the last).
+"""Markdown table of a training run's progress from its log.csv (every Nth epoch, the best, the last).
 
     python scripts/run_progress.py training-runs/cross3d-16x32/log.csv [--every 5]
+    python scripts/run_progress.py training-runs/cross3d-16x32/log.csv --update docs/results.md
 
-Used for docs/results.md ("Paper-scale runs"); the numbers are the log's, rounded.
+``--update FILE`` replaces the table between ``<!-- run-progress:begin -->`` and
+``<!-- run-progress:end -->`` in FILE (docs/results.md, "Paper-scale runs") instead of printing it;
+the numbers are the log's, rounded.
 """
 from __future__ import annotations
 
 import argparse
 import csv
+import re
+import sys
 from pathlib import Path
+
+HEADER = ("| epoch | SNR (dB) | batch | train loss | val RMSAE all (deg) | val RMSAE non-silent (deg) "
+          "| trajectories seen | compute (h) | trajectories/s |\n|---|---|---|---|---|---|---|---|---|\n")
+
+
+def progress_table(log: Path, every: int) -> str:
+    rows = list(csv.DictReader(log.open()))
+    if not rows:
+        raise SystemExit(f"{log}: no epochs yet")
+    best = min(rows, key=lambda r: float(r["val_rmsae_all"]))
+    lines = []
+    for i, r in enumerate(rows):
+        if int(r["epoch"]) % every and i != len(rows) - 1 and r is not best:
+            continue
+        mark = " (best)" if r is best else ""
+        lines.append(f"| {r['epoch']}{mark} | {r['phase_snr']} | {r['batch_size']} | {float(r['train_loss']):.4f} "
+                     f"| {float(r['val_rmsae_all']):.2f} | {float(r['val_rmsae_nonsilent']):.2f} "
+                     f"| {int(r['trajectories_seen']):,} | {float(r['compute_s']) / 3600:.2f} "
+                     f"| {float(r['trajectories_per_s']):.2f} |\n")
+    return HEADER + "".join(lines)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log", type=Path)
     ap.add_argument("--every", type=int, default=5)
+    ap.add_argument("--update", type=Path, help="Markdown file whose run-progress block to rewrite")
     args = ap.parse_args()
-    rows = list(csv.DictReader(args.log.open()))
-    if not rows:
-        raise SystemExit(f"{args.log}: no epochs yet")
-    best = min(rows, key=lambda r: float(r["val_rmsae_all"]))
-    print("| epoch | SNR (dB) | batch | train loss | val RMSAE all (deg) | val RMSAE non-silent (deg) "
-          "| trajectories seen | compute (h) | trajectories/s |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for i, r in enumerate(rows):
-        if (int(r["epoch"]) % args.every and i != len(rows) - 1) and r is not best:
-            continue
-        mark = " (best)" if r is best else ""
-        print(f"| {r['epoch']}{mark} | {r['phase_snr']} | {r['batch_size']} | {float(r['train_loss']):.4f} "
-              f"| {float(r['val_rmsae_all']):.2f} | {float(r['val_rmsae_nonsilent']):.2f} | {int(r['trajectories_seen']):,} "
-              f"| {float(r['compute_s']) / 3600:.2f} | {float(r['trajectories_per_s']):.2f} |")
+    table = progress_table(args.log, args.every)
+    if args.update is None:
+        sys.stdout.write(table)
+        return
+    text = args.update.read_text(encoding="utf-8")
+    pattern = r"(<!-- run-progress:begin -->\n)(.*?)(<!-- run-progress:end -->)"
+    if not re.search(pattern, text, re.S):
+        raise SystemExit(f"{args.update} has no run-progress block")
+    args.update.write_text(re.sub(pattern, lambda m: m.group(1) + table + m.group(3), text, flags=re.S),
+                           encoding="utf-8")
 
 
 if __name__ == "__main__":
