@@ -46,4 +46,5 @@ for ck in training-runs/*/checkpoint.safetensors; do
 done
 git add training-runs
 [ -d baselines/weights ] && git add baselines/weights
-git commit -m "training-runs: run state at the end of a session ($(for r in training-runs/*/log.csv; do printf '%s epoch %s; ' "$(basename "$(dirname "$r")")" "$(tail -1 "$r" | cut -d, -f1)"; done))" || echo "nothing to commit"
+summary=$(for r in training-runs/*/log.csv; do printf '%s epoch %s\n' "$(basename "$(dirname "$r")")" "$(tail -1 "$r" | cut -d, -f1)"; done | paste -sd, - | sed 's/,/, /g')
+git commit -m "training-runs: run state at the end of a session ($summary)" || echo "nothing to commit"
