@@ -30,9 +30,8 @@ from doabench.errors import ConfigError, DependencyError, InputError, NotFoundEr
 
 _MIN_SOURCE_MIC_DISTANCE = 1e-3  # metres; 1 / (4 pi r) blows up at the microphone
 # Spectra held at once by the FFT convolutions, (points, mics, nfft) or (mics, blocks, nfft): about
-# 2 MB, so each chunk's transform, product and overlap-add stay in the L2 cache. Measured on our
-# Intel Xeon, one thread: the early-part convolution of a 156-point, 12-mic trajectory 0.061 s
-# with 8M-element chunks, 0.044 s with 500k; the tail convolution 20 % faster.
+# 2 MB, so each chunk's transform, product and overlap-add stay in the L2 cache (8M-element
+# chunks were about a third slower for the early part; docs/performance.md, "early conv").
 _OLA_CHUNK_ELEMENTS = 500_000
 
 
@@ -203,10 +202,10 @@ def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor, n_taps: int | 
 
 def tail_block_size(n_tail: int, n_out: int) -> int:
     """Signal samples per block of :func:`add_tail_convolution_`: the power of two at or above
-    twice the tail length, at least 8192 (and at most the output length). Measured on our Intel
-    Xeon, one thread, 12 mics x 20 s: blocks of 2-4 tail lengths were fastest (0.029-0.039 s
-    against 0.052-0.059 s for one transform of the whole signal, whose 330,000-point transforms
-    do not fit in the cache); smaller blocks pay for their overlap."""
+    twice the tail length, at least 8192 (and at most the output length). In one-off timings on
+    our Intel Xeon (12 mics x 20 s, one thread) blocks of 2-4 tail lengths were fastest: the
+    330,000-point transforms of the whole signal do not fit in the cache, smaller blocks pay for
+    their overlap (the effect on a trajectory: docs/performance.md, "tail conv")."""
     block = max(8192, 1 << max(0, math.ceil(math.log2(max(1, 2 * n_tail)))))
     return max(1, min(block, n_out))
 
