@@ -67,8 +67,11 @@ def partial_path_for(out: Path, task_id: str, tracker_id: str, options: dict[str
 
 
 def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | None, delays: str,
-                     options: dict[str, Any]) -> Path | None:
-    """The results file of a finished run with these settings, else None (the run is (re)done)."""
+                     options: dict[str, Any], weights_hash: str | None = None) -> Path | None:
+    """The results file of a finished run with these settings, else None (the run is (re)done).
+
+    ``weights_hash``: the tracker's weights now (``Tracker.weights_hash()``); a file written with
+    other weights (e.g. before new shipped weights) is not finished for this sweep."""
     from doabench.envs.registry import get_task_spec
 
     path = out / f"{run_stem(task_id, tracker_id, options, delays)}.json"
@@ -81,7 +84,8 @@ def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | N
         want = total if episodes is None else min(int(episodes), total)
         same = (r["task"]["id"] == spec.id and int(r["task"]["version"]) == spec.version
                 and r["tracker"]["id"] == tracker_id and (r["tracker"].get("options") or {}) == options
-                and r["features"]["delays"] == delays and int(r["task"]["episodes_run"]) == want)
+                and r["features"]["delays"] == delays and int(r["task"]["episodes_run"]) == want
+                and r["tracker"].get("weights_hash") == weights_hash)
     except (OSError, ValueError, KeyError, TypeError, DoabenchError):
         return None
     return path if same else None
@@ -108,10 +112,11 @@ def execute_run(tracker_id: str, task_id: str, out: str | Path, episodes: int | 
     return results
 
 
-def _finish(run: SweepRun, results: dict[str, Any], out: Path, options: dict[str, Any], delays: str) -> None:
+def _finish(run: SweepRun, results: dict[str, Any], out: Path, options: dict[str, Any], delays: str,
+            overwrite: bool = False) -> None:
     from doabench.results.writer import write_results
 
-    json_path, _ = write_results(results, out)
+    json_path, _ = write_results(results, out, overwrite=overwrite)
     partial_path_for(out, run.task, run.tracker, options, delays).unlink(missing_ok=True)
     run.status, run.json_path = "done", json_path
     run.rmsae_all = float(results["summary"]["rmsae_all"])
@@ -121,11 +126,16 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
           episodes: int | None = None, delays: str = "nearest", tracker_options: dict[str, Any] | None = None,
           keep_frames: bool = True, engine: str = "local", ray_address: str | None = None,
           workers: int | None = None, leaderboard: str | Path | None = None,
-          log: Callable[[str], None] = print, progress: bool = False, **env_options: Any) -> SweepResult:
+          log: Callable[[str], None] = print, progress: bool = False, overwrite: bool = False,
+          **env_options: Any) -> SweepResult:
     """Run every (tracker, task) of the lists into ``out`` and build the leaderboard of ``out``
-    (into ``leaderboard``, default ``out/leaderboard``)."""
+    (into ``leaderboard``, default ``out/leaderboard``).
+
+    A results file of another configuration in the way (another task version, other weights) is
+    replaced only with ``overwrite``; without it that run fails at once, before any work."""
     from doabench.envs.registry import get_task_spec
     from doabench.ray_support import check_engine, require_ray
+    from doabench.results.writer import check_overwrite, configuration
     from doabench.trackers.registry import make_tracker
 
     check_engine(engine)
@@ -134,31 +144,40 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     trackers, tasks = parse_list(trackers, "trackers"), parse_list(tasks, "tasks")
     options = dict(tracker_options or {})
     task_ids = [get_task_spec(t).id for t in tasks]  # unknown ids: one line, before any work
-    for t in trackers:
-        make_tracker(t, **options)
+    weights = {t: make_tracker(t, **options).weights_hash() for t in trackers}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs = [SweepRun(tracker, task) for task in task_ids for tracker in trackers]
     todo = []
     for run in runs:
-        path = finished_results(out, run.task, run.tracker, episodes, delays, options)
+        path = finished_results(out, run.task, run.tracker, episodes, delays, options, weights[run.tracker])
         if path is not None:
             run.status, run.json_path = "skipped", path
             log(f"{run.tracker} on {run.task}: already done ({path.name})")
-        else:
-            todo.append(run)
+            continue
+        try:  # refuse to replace another configuration's file now, not after the run
+            spec = get_task_spec(run.task)
+            check_overwrite(out / f"{run_stem(run.task, run.tracker, options, delays)}.json",
+                            configuration(spec.id, spec.version, run.tracker, options, weights[run.tracker], delays),
+                            overwrite)
+        except DoabenchError as exc:
+            run.status, run.error = "failed", str(exc)
+            _log_run(run, log)
+            continue
+        todo.append(run)
     args = (episodes, delays, options, keep_frames, env_options)
     if engine == "local":
         for run in todo:
             t0 = time.perf_counter()
             try:
-                _finish(run, execute_run(run.tracker, run.task, out, *args, progress=progress), out, options, delays)
+                _finish(run, execute_run(run.tracker, run.task, out, *args, progress=progress), out, options, delays,
+                        overwrite)
             except DoabenchError as exc:
                 run.status, run.error = "failed", str(exc)
             run.seconds = time.perf_counter() - t0
             _log_run(run, log)
     elif todo:
-        _sweep_ray(todo, out, args, ray_address, workers, log)
+        _sweep_ray(todo, out, args, ray_address, workers, log, overwrite)
     result = SweepResult(out, runs)
     if any(r.status in ("done", "skipped") for r in runs):
         from doabench.results.leaderboard import build_leaderboards, write_leaderboards
@@ -178,7 +197,7 @@ def _log_run(run: SweepRun, log: Callable[[str], None]) -> None:
 
 
 def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, address: str | None, workers: int | None,
-               log: Callable[[str], None]) -> None:
+               log: Callable[[str], None], overwrite: bool = False) -> None:
     from doabench.ray_support import ray_session, unwrap
 
     with ray_session(address, workers or (None if address else min(len(todo), 2))) as ray:
@@ -192,7 +211,7 @@ def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, address: str | None
                 ready, _ = ray.wait(list(refs), num_returns=1)
                 run, t0 = refs.pop(ready[0])
                 try:
-                    _finish(run, ray.get(ready[0]), out, options=args[2], delays=args[1])
+                    _finish(run, ray.get(ready[0]), out, options=args[2], delays=args[1], overwrite=overwrite)
                 except Exception as exc:
                     exc = unwrap(exc)
                     if not isinstance(exc, DoabenchError):

@@ -17,7 +17,7 @@ CLASSICAL="srp-max:4x8,srp-max:8x16,srp-max:16x32,srp-max:32x64,srp-max:64x128,s
 LEARNED="cross3d:4x8,cross3d:8x16,cross3d:16x32,gcc-cnn1d,max-cnn1d:64x128,spec-cnn2d,seldnet"
 
 "$DOABENCH" sweep --trackers "$CLASSICAL,$LEARNED" --tasks sim-grid,sim-pauses,sim-fan \
-    --librispeech "$LIBRI" --out results --leaderboard leaderboards --no-frames --quiet
+    --librispeech "$LIBRI" --out results --leaderboard leaderboards --no-frames --quiet --overwrite
 for metric in rmsae_nonsilent rmsae_all; do
     fig=$([ "$metric" = rmsae_nonsilent ] && echo fig6-rmsae-nonsilent-vs-t60 || echo fig8-rmsae-all-vs-t60)
     "$DOABENCH" plot rmsae-vs-t60 results/sim-grid__*.json --metric "$metric" --out "docs/img/$fig"

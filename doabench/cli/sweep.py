@@ -30,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="Ray cluster to use with --engine ray; default: a local Ray instance with --workers CPUs")
     p.add_argument("--workers", type=int, help="CPUs of the local Ray instance (default: 2 at most)")
     p.add_argument("--quiet", action="store_true", help="no progress bar (local engine)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace results files of another configuration (another task version, other "
+                        "weights) instead of refusing those runs")
     add_corpus_options(p)
     p.set_defaults(func=main)
 
@@ -52,7 +55,7 @@ def main(args: argparse.Namespace) -> int:
                    tracker_options=parse_options(args.tracker_opt), keep_frames=not args.no_frames,
                    engine=args.engine, ray_address=args.ray_address, workers=args.workers,
                    leaderboard=args.leaderboard, log=lambda m: print(m, flush=True),
-                   progress=not args.quiet and args.engine == "local", **env_options)
+                   progress=not args.quiet and args.engine == "local", overwrite=args.overwrite, **env_options)
     n = len(result.runs)
     done = sum(r.status == "done" for r in result.runs)
     skipped = sum(r.status == "skipped" for r in result.runs)
