@@ -180,10 +180,11 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
         _sweep_ray(todo, out, args, ray_address, workers, log, overwrite)
     result = SweepResult(out, runs)
     if any(r.status in ("done", "skipped") for r in runs):
-        from doabench.results.leaderboard import build_leaderboards, write_leaderboards
+        from doabench.results.leaderboard import build_leaderboards, default_references, write_leaderboards
 
         board = Path(leaderboard) if leaderboard is not None else out / "leaderboard"
-        files = build_leaderboards(out, (), command=f"doabench leaderboard --results {out} --out {board}")
+        files = build_leaderboards(out, default_references(board),
+                                   command=f"doabench leaderboard --results {out} --out {board}")
         write_leaderboards(files, board)
         result.leaderboard, result.leaderboard_files = board, sorted(files)
     return result

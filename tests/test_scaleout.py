@@ -199,6 +199,20 @@ def test_sweep_runs_every_pair_resumes_and_builds_the_leaderboard(task_dir, tmp_
     assert _summaries(single)[name] == _summaries(out)[name]
 
 
+def test_sweep_leaderboard_equals_doabench_leaderboard(task_dir, tmp_path):
+    """The sweep writes the same tables `doabench leaderboard` writes for that folder, published
+    reference rows kept beside them included."""
+    import shutil
+
+    out, board = tmp_path / "results", tmp_path / "board"
+    board.mkdir()
+    shutil.copy(Path(__file__).resolve().parents[1] / "leaderboards" / "locata-paper-table2.csv", board)
+    assert main(["sweep", "--trackers", "srp-max:4x8", "--tasks", TASK, "--episodes", "1", "--quiet",
+                 "--out", str(out), "--leaderboard", str(board)]) == 0
+    assert "published" in (board / "summary.md").read_text()
+    assert main(["leaderboard", "--results", str(out), "--out", str(board), "--check"]) == 0
+
+
 def test_sweep_redoes_a_run_whose_tracker_weights_changed(task_dir, tmp_path, capsys):
     """A results file written with other weights (e.g. before newly trained weights shipped) is
     not "already done": the sweep runs it again, replacing the file with --overwrite only."""

@@ -5,9 +5,6 @@ import argparse
 import shlex
 from pathlib import Path
 
-DEFAULT_REFERENCE = "locata-paper-table2.csv"
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("leaderboard", help="build leaderboard tables from results files",
                        description="Write one Markdown table and one CSV per task (grid tasks also get per-cell "
@@ -16,7 +13,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--results", default="results", help="folder of results JSON files (default: results/)")
     p.add_argument("--out", default="leaderboards", help="output folder (default: leaderboards/)")
     p.add_argument("--reference", action="append", metavar="CSV",
-                   help=f"CSV of published reference rows (repeatable; default: OUT/{DEFAULT_REFERENCE} if present)")
+                   help="CSV of published reference rows (repeatable; default: OUT/locata-paper-table2.csv if present)")
     p.add_argument("--check", action="store_true",
                    help="write nothing; exit 1 if any generated file in OUT is missing or differs")
     p.set_defaults(func=main)
@@ -31,11 +28,9 @@ def _command(args: argparse.Namespace) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
-    from doabench.results.leaderboard import build_leaderboards, stale_files, write_leaderboards
+    from doabench.results.leaderboard import build_leaderboards, default_references, stale_files, write_leaderboards
 
-    references = list(args.reference or [])
-    if not references and (Path(args.out) / DEFAULT_REFERENCE).is_file():
-        references = [str(Path(args.out) / DEFAULT_REFERENCE)]
+    references = list(args.reference or []) or default_references(args.out)
     files = build_leaderboards(args.results, references, command=_command(args))
     if args.check:
         stale = stale_files(files, args.out)

@@ -451,6 +451,16 @@ def summary_markdown(boards: dict[str, TaskBoard], runs: Sequence[RunFile], refe
 
 
 # -- the whole job -------------------------------------------------------------------------------------
+DEFAULT_REFERENCE = "locata-paper-table2.csv"  # published rows kept beside the tables
+
+
+def default_references(board_dir: str | Path) -> list[str]:
+    """The reference CSVs a leaderboard folder uses when none are given: its
+    :data:`DEFAULT_REFERENCE` if present (``doabench leaderboard`` and ``doabench sweep`` alike)."""
+    path = Path(board_dir) / DEFAULT_REFERENCE
+    return [str(path)] if path.is_file() else []
+
+
 def build_leaderboards(results_dir: str | Path, reference_files: Sequence[str | Path] = (),
                        command: str = "doabench leaderboard") -> dict[str, str]:
     """All generated files as ``{file name: text}`` (nothing written)."""
