@@ -48,3 +48,21 @@ def test_targets_missed_and_missing_are_listed(tmp_path):
     for words in ("pooled sim-grid RMSAE 11.00 > 10", "vs srp-max:16x32 12.00", "sim-pauses: 20.00 > 1.5 x 8.00",
                   "sim-fan results missing"):
         assert words in r.stdout, r.stdout
+
+
+def test_pause_hold_bound(tmp_path):
+    """The hold-the-truth oracle: 90° before the first voice-active frame, then the angle the
+    source has moved since the last voice-active frame; the tracker's own RMSAE beside it."""
+    up, east, north = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]
+    frames = {"truth": [up, up, east, north], "estimates": [up, up, up, north], "vad": [False, True, False, True]}
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps({"frames": [frames]}))
+    script = Path(__file__).resolve().parents[1] / "scripts" / "pause_hold_bound.py"
+    out = subprocess.run([sys.executable, str(script), str(path)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    row = out.stdout.strip().splitlines()[-1].split("|")
+    # tracker: errors 0, 0, 90, 0; oracle: 90 (nothing heard yet), 0, 90 (up -> east), 0
+    assert [float(x) for x in row[2:5]] == [45.0, 0.0, 63.64]
+    path.write_text(json.dumps({"frames": None}))
+    out = subprocess.run([sys.executable, str(script), str(path)], capture_output=True, text=True)
+    assert out.returncode == 2 and "no per-frame estimates" in out.stderr
