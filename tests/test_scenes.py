@@ -197,3 +197,31 @@ def test_pauses_silence_the_talker_and_are_reproducible():
     plain = sample_scene(dist.replace(pause_p=0.0), 5, speech)
     assert plain.speech_pauses == () and "speech_pauses" not in plain.to_dict()
     assert type(scene).from_dict(scene.to_dict()) == scene
+
+
+def test_pause_hold_stops_the_talker_while_silent_and_pause_after_delays_pauses():
+    from doabench.acoustics.trajectories import segment_bounds
+
+    base = SceneDistribution(p_static=0.0, pause_p=1.0, pause_count=(2, 3), pause_s=(3.0, 6.0))
+    held = base.replace(pause_after_s=2.0, pause_hold=True)
+    for seed in range(4):
+        walk, hold = sample_scene(base, seed), sample_scene(held, seed)
+        assert sample_scene(held, seed) == hold  # reproducible
+        assert all(a >= 2 * held.fs for a, _ in hold.speech_pauses)  # after the first 2 s
+        # Points whose whole segment lies in a pause stand where the talker stopped; the others
+        # keep walking, and the whole path is walked, from the same start to the same end.
+        bounds = segment_bounds(held.n_samples, held.n_points)
+        inside = np.array([any(a <= lo and hi <= b for a, b in hold.speech_pauses)
+                           for lo, hi in zip(bounds[:-1], bounds[1:])])
+        steps = np.linalg.norm(np.diff(hold.trajectory, axis=0), axis=1)
+        assert inside.any() and np.all(steps[inside[1:] & inside[:-1]] == 0)
+        assert np.all(steps[~inside[1:] & ~inside[:-1]] > 0)
+        np.testing.assert_allclose(hold.trajectory[0], walk.trajectory[0])
+        np.testing.assert_allclose(hold.trajectory[-1], walk.trajectory[-1], atol=0.05)
+    # The defaults leave earlier tasks' scenes and distribution dicts as they were.
+    assert "pause_hold" not in base.to_dict() and "pause_after_s" not in base.to_dict()
+    assert SceneDistribution.from_dict(held.to_dict()) == held
+    with pytest.raises(ConfigError, match="pause_after_s"):
+        SceneDistribution(pause_after_s=25.0)
+    with pytest.raises(ConfigError, match="pause_hold"):
+        SceneDistribution(pause_hold="yes")

@@ -16,12 +16,12 @@ import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from doabench.acoustics.room import Room, check_inside
-from doabench.acoustics.trajectories import sample_directions, sample_trajectory
+from doabench.acoustics.trajectories import sample_directions, sample_trajectory, segment_bounds
 from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError
 
@@ -87,6 +87,11 @@ class SceneDistribution:
     pause_p: float = 0.0
     pause_count: Range = (1.0, 2.0)
     pause_s: Range = (2.0, 5.0)
+    # pause_after_s: pauses start no earlier (so a tracker has heard the talker before one);
+    # pause_hold: the talker stands still while silent (its path resumes where it stopped), so a
+    # tracker that holds its track is right; otherwise it walks on through the pause.
+    pause_after_s: float = 0.0
+    pause_hold: bool = False
 
     def __post_init__(self) -> None:
         for name in _RANGES + _VEC3:
@@ -117,7 +122,7 @@ class SceneDistribution:
                    f"scene parameter {name} must be a positive integer, got {v!r}")
             object.__setattr__(self, name, int(v))
         for name in ("duration_s", "p_static", "max_amplitude", "max_oscillations", "wall_margin",
-                     "min_array_distance", "directional_noise_p", "pause_p"):
+                     "min_array_distance", "directional_noise_p", "pause_p", "pause_after_s"):
             v = getattr(self, name)
             _check(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and math.isfinite(v),
                    f"scene parameter {name} must be a finite number, got {v!r}")
@@ -136,15 +141,24 @@ class SceneDistribution:
         _check(self.pause_count[0] >= 0 and all(float(c).is_integer() for c in self.pause_count),
                f"pause_count must be two non-negative integers, got {list(self.pause_count)}")
         _check(self.pause_s[0] >= 0, f"pause_s must be >= 0 s, got {list(self.pause_s)}")
+        _check(0 <= self.pause_after_s < self.duration_s,
+               f"pause_after_s must be >= 0 s and shorter than the scene ({self.duration_s} s), got {self.pause_after_s}")
+        _check(isinstance(self.pause_hold, (bool, np.bool_)), f"pause_hold must be true or false, got {self.pause_hold!r}")
+        object.__setattr__(self, "pause_hold", bool(self.pause_hold))
 
     @property
     def n_samples(self) -> int:
         return int(round(self.duration_s * self.fs))
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict (lists, numbers, strings) that :meth:`from_dict` reads back."""
-        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
-                for f in dataclasses.fields(self)}
+        """Plain dict (lists, numbers, strings) that :meth:`from_dict` reads back. The later pause
+        options appear only when set, so the distributions of earlier tasks keep their dicts."""
+        d = {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
+             for f in dataclasses.fields(self)}
+        for name, default in (("pause_after_s", 0.0), ("pause_hold", False)):
+            if d[name] == default:
+                del d[name]
+        return d
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> "SceneDistribution":
@@ -399,12 +413,16 @@ def sample_scene(
     if enabled:
         noise = DirectionalNoise(noise_draw.points[0], noise_snr, dist.directional_noise_kind)
 
+    pauses = sample_pauses(rngs["pauses"], dist)
+    points = draw.points
+    if dist.pause_hold and pauses and not draw.static:
+        points = hold_during_pauses(points, pauses, dist.n_samples)
     return Scene(
         room=room, snr_db=snr, array_position=centre, array_name=array.name,
-        mic_positions=np.array(array.positions), trajectory=draw.points, static=draw.static,
+        mic_positions=np.array(array.positions), trajectory=points, static=draw.static,
         seed=int(seed), duration_s=dist.duration_s, fs=dist.fs, speech=speech,
         directional_noise=noise, trajectory_params=draw.params(),
-        speech_pauses=sample_pauses(rngs["pauses"], dist),
+        speech_pauses=pauses,
     )
 
 
@@ -417,5 +435,33 @@ def sample_pauses(rng: np.random.Generator, dist: SceneDistribution) -> tuple[tu
     count = int(rng.integers(int(dist.pause_count[0]), int(dist.pause_count[1]) + 1))
     # A pause longer than the scene (short test scenes) silences all of it.
     lengths = np.minimum(np.round(rng.uniform(*dist.pause_s, count) * dist.fs).astype(np.int64), n)
-    starts = np.floor(rng.uniform(0.0, 1.0, count) * (n - lengths + 1)).astype(np.int64)
+    first = min(int(round(dist.pause_after_s * dist.fs)), n)  # 0 by default: the formula of version 0
+    lengths = np.minimum(lengths, n - first)
+    starts = first + np.floor(rng.uniform(0.0, 1.0, count) * (n - first - lengths + 1)).astype(np.int64)
     return tuple(sorted((int(a), int(a + b)) for a, b in zip(starts, lengths)))
+
+
+def hold_during_pauses(points: np.ndarray, pauses: Sequence[tuple[int, int]], n_samples: int) -> np.ndarray:
+    """The trajectory ``(S, 3)`` re-timed so that the talker stands still while silent.
+
+    Point ``i`` stands for its segment's centre sample ``c``; it moves to where the original path
+    is after the fraction ``a(c) / a(n)`` of the talking time, ``a(t)`` being the samples before
+    ``t`` outside every pause (``pauses``: sample intervals, may overlap). So the whole path is
+    walked while talking, in the same order, and points inside a pause share one position.
+    """
+    S = points.shape[0]
+    bounds = segment_bounds(n_samples, S)
+    centres = (bounds[:-1] + bounds[1:]) / 2.0
+    silent = np.zeros(n_samples + 1, dtype=np.int64)  # +1 at a pause's start, -1 at its end
+    for a, b in pauses:
+        silent[a] += 1
+        silent[b] -= 1
+    talking = np.cumsum(np.concatenate([[0], np.cumsum(silent[:-1]) == 0]))  # a(t) for t = 0..n
+    total = talking[-1]
+    if total == 0:  # silent throughout: nowhere to walk
+        return np.repeat(points[:1], S, axis=0)
+    a_c = np.interp(centres, np.arange(n_samples + 1), talking)
+    a_first, a_last = np.interp(centres[[0, -1]], np.arange(n_samples + 1), talking)
+    u = (a_c - a_first) / max(a_last - a_first, 1e-12) * (S - 1)  # fractional index into the path
+    idx = np.arange(S)
+    return np.stack([np.interp(u, idx, points[:, k]) for k in range(3)], axis=1)
