@@ -9,7 +9,7 @@ Targets (issue 12, sections 4 and 5):
   <= 15 deg.
 
 Usage: ``python scripts/cross3d_targets.py [RESULTS_FOLDER]`` (default ``results/``). A missing
-results file is reported as such (run ``doabench sweep`` or ``doabench run`` first); the exit
+results file, or one of an older task version, is reported as missing (run ``doabench sweep`` or ``doabench run`` first); the exit
 status is 0 when every target that could be checked is met and nothing is missing, else 1.
 """
 from __future__ import annotations
@@ -20,8 +20,15 @@ from pathlib import Path
 
 
 def load(folder: Path, task: str, stem: str) -> dict | None:
+    """The results of ``stem`` on ``task``, or None when there are none for the task's current
+    version (results of an older version are not comparable: other episodes)."""
+    from doabench.envs.registry import get_task_spec
+
     path = folder / f"{task}__{stem}.json"
-    return json.loads(path.read_text()) if path.is_file() else None
+    if not path.is_file():
+        return None
+    r = json.loads(path.read_text())
+    return r if int(r["task"]["version"]) == get_task_spec(task).version else None
 
 
 def describe(r: dict) -> str:

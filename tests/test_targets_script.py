@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from doabench.envs.registry import get_task_spec
+
 ROOT = Path(__file__).resolve().parents[1]
 CELLS = [(0.0, 5.0), (0.3, 15.0), (0.9, 30.0)]
 
@@ -14,7 +16,7 @@ def _write(folder: Path, task: str, stem: str, per_cell: list[float], nonsilent:
     cells = {f"sim-t60-{t}-snr-{s}": {"t60": t, "snr": s, "rmsae_all": v} for (t, s), v in zip(CELLS, per_cell)}
     pooled = sum(per_cell) / len(per_cell)
     result = {"tracker": {"id": stem.replace("_", ":"), "weights_hash": "ab" * 32},
-              "task": {"id": task, "version": 1, "episodes_run": 60}, "cells": cells,
+              "task": {"id": task, "version": get_task_spec(task).version, "episodes_run": 60}, "cells": cells,
               "summary": {"rmsae_all": pooled, "rmsae_nonsilent": nonsilent or pooled}}
     (folder / f"{task}__{stem}.json").write_text(json.dumps(result))
 
@@ -48,6 +50,12 @@ def test_targets_missed_and_missing_are_listed(tmp_path):
     for words in ("pooled sim-grid RMSAE 11.00 > 10", "vs srp-max:16x32 12.00", "sim-pauses: 20.00 > 1.5 x 8.00",
                   "sim-fan results missing"):
         assert words in r.stdout, r.stdout
+    # results of an older task version do not count (other episodes): reported as missing
+    path = tmp_path / "sim-pauses__cross3d_16x32.json"
+    old = json.loads(path.read_text())
+    old["task"]["version"] -= 1
+    path.write_text(json.dumps(old))
+    assert "sim-pauses results missing" in _run(tmp_path).stdout
 
 
 def test_pause_hold_bound(tmp_path):
