@@ -23,10 +23,11 @@ for metric in rmsae_nonsilent rmsae_all; do
     "$DOABENCH" plot rmsae-vs-t60 results/sim-grid__*.json --metric "$metric" --out "docs/img/$fig"
 done
 # Fig. 7 needs per-frame estimates, which the sweep leaves out (--no-frames: 10 MB per 360-episode
-# file otherwise): the first 46 episodes (episode 45: T60 0.9 s, SNR 5 dB) again, with frames.
+# file otherwise): the first 181 episodes again, with frames. Episode 180 opens cell T60 0.9 s,
+# SNR 5 dB (20 episodes per cell, cells in T60-major order).
 for t in srp-kalman:32x64 cross3d:16x32; do
-    "$DOABENCH" run --tracker "$t" --task sim-grid --episodes 46 --librispeech "$LIBRI" --out runs/fig7 --quiet
+    "$DOABENCH" run --tracker "$t" --task sim-grid --episodes 181 --librispeech "$LIBRI" --out runs/fig7 --quiet --overwrite
 done
 "$DOABENCH" plot episode runs/fig7/sim-grid__srp-kalman_32x64.json runs/fig7/sim-grid__cross3d_16x32.json \
-    --episode 45 --librispeech "$LIBRI" --out docs/img/fig7-episode-45
+    --episode 180 --librispeech "$LIBRI" --out docs/img/fig7-episode-180
 .venv/bin/python scripts/cross3d_targets.py results

@@ -221,7 +221,8 @@ def test_pause_hold_stops_the_talker_while_silent_and_pause_after_delays_pauses(
     # The defaults leave earlier tasks' scenes and distribution dicts as they were.
     assert "pause_hold" not in base.to_dict() and "pause_after_s" not in base.to_dict()
     assert SceneDistribution.from_dict(held.to_dict()) == held
+    assert sample_scene(held.replace(duration_s=1.5), 0).speech_pauses == ()  # shorter than pause_after_s
     with pytest.raises(ConfigError, match="pause_after_s"):
-        SceneDistribution(pause_after_s=25.0)
+        SceneDistribution(pause_after_s=-1.0)
     with pytest.raises(ConfigError, match="pause_hold"):
         SceneDistribution(pause_hold="yes")

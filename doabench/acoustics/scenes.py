@@ -141,8 +141,7 @@ class SceneDistribution:
         _check(self.pause_count[0] >= 0 and all(float(c).is_integer() for c in self.pause_count),
                f"pause_count must be two non-negative integers, got {list(self.pause_count)}")
         _check(self.pause_s[0] >= 0, f"pause_s must be >= 0 s, got {list(self.pause_s)}")
-        _check(0 <= self.pause_after_s < self.duration_s,
-               f"pause_after_s must be >= 0 s and shorter than the scene ({self.duration_s} s), got {self.pause_after_s}")
+        _check(self.pause_after_s >= 0, f"pause_after_s must be >= 0 s, got {self.pause_after_s}")
         _check(isinstance(self.pause_hold, (bool, np.bool_)), f"pause_hold must be true or false, got {self.pause_hold!r}")
         object.__setattr__(self, "pause_hold", bool(self.pause_hold))
 
@@ -435,7 +434,9 @@ def sample_pauses(rng: np.random.Generator, dist: SceneDistribution) -> tuple[tu
     count = int(rng.integers(int(dist.pause_count[0]), int(dist.pause_count[1]) + 1))
     # A pause longer than the scene (short test scenes) silences all of it.
     lengths = np.minimum(np.round(rng.uniform(*dist.pause_s, count) * dist.fs).astype(np.int64), n)
-    first = min(int(round(dist.pause_after_s * dist.fs)), n)  # 0 by default: the formula of version 0
+    first = int(round(dist.pause_after_s * dist.fs))  # 0 by default: the formula of version 0
+    if first >= n:  # a scene shorter than pause_after_s (short test scenes) has no pause
+        return ()
     lengths = np.minimum(lengths, n - first)
     starts = first + np.floor(rng.uniform(0.0, 1.0, count) * (n - first - lengths + 1)).astype(np.int64)
     return tuple(sorted((int(a), int(a + b)) for a, b in zip(starts, lengths)))
