@@ -234,3 +234,143 @@ def test_sweep_redoes_a_run_whose_tracker_weights_changed(task_dir, tmp_path, ca
     assert main([*args, "--overwrite"]) == 0
     assert "(1 run now, 0 already done, 0 failed)" in capsys.readouterr().out
     assert json.loads(path.read_text())["tracker"]["weights_hash"] is None
+
+
+def test_sweep_reports_a_failing_run_and_goes_on(task_dir, tmp_path, monkeypatch, capsys):
+    assert main(["sweep", "--trackers", "srp-max:4x8x9", "--tasks", TASK_B, "--out", str(tmp_path)]) == 2
+    assert "4x8x9" in capsys.readouterr().err  # a bad tracker id: one line, before any run
+    plugin = tmp_path / "plugins"
+    plugin.mkdir()
+    (plugin / "raising_sweep_mod.py").write_text(
+        "import doabench\n\n\nclass Mid(doabench.Tracker):\n    name = 'mid'\n\n"
+        "    def step(self, observation):\n        raise ZeroDivisionError('mid-episode')\n")
+    monkeypatch.syspath_prepend(str(plugin))
+    out = tmp_path / "out"
+    code = main(["sweep", "--trackers", "raising_sweep_mod:Mid,srp-max:4x8", "--tasks", TASK_B, "--episodes", "1",
+                 "--out", str(out), "--quiet"])
+    text = capsys.readouterr().out
+    assert code == 1 and "1 failed" in text and "mid-episode" in text
+    assert [p.name for p in out.glob("*.json")] == [f"{TASK_B}__srp-max_4x8.json"]
+    assert (out / "leaderboard" / f"{TASK_B}.md").is_file()
+
+
+def test_sweep_on_ray_gives_the_local_results(ray_cluster, tmp_path, capsys):
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    assert main(["sweep", *SWEEP, "--out", str(local)]) == 0
+    with deadline(RAY_TIMEOUT_S, "sweep on Ray"):
+        assert main(["sweep", *SWEEP, "--out", str(remote), "--engine", "ray"]) == 0
+    assert _summaries(remote) == _summaries(local)
+    assert (remote / "leaderboard" / "summary.md").is_file()
+
+
+# -- data-parallel training (torchrun's environment, gloo on CPU) ----------------------------------------
+def test_rank_batches_split_every_global_batch():
+    from doabench.training.distributed import rank_batches
+
+    per_rank = [rank_batches(7, 4, r, 3) for r in range(3)]
+    for b, size in enumerate((4, 3)):
+        got = sorted(i for batches, weights in per_rank for i, w in zip(batches[b], [weights[b]] * 9) if w > 0)
+        assert got == list(range(4 * b, 4 * b + size))
+        assert sum(weights[b] for _, weights in per_rank) == pytest.approx(1.0)
+    batches, weights = rank_batches(5, 4, 1, 2)  # the last batch has 1 item: rank 1 gets a stand-in
+    assert batches == [[2, 3], [4]] and weights == [0.5, 0.0]
+
+
+DDP_RECIPE = dict(epochs=2, trajectories_per_epoch=5)  # batches 2,2,1 then 4,1: uneven splits included
+
+
+def _no_plot(*args, **kwargs) -> None:  # loss.png costs a matplotlib import per process; not tested here
+    return None
+
+
+def _ddp_rank(rank: int, world: int, ports: list, out: str, caches: tuple, runs: list) -> None:
+    """One rank, as torchrun starts it (its environment variables), training the tiny tracker: one
+    invocation per ``(max_epochs, resume)`` of ``runs`` (a new process group and Trainer each,
+    the second reading the checkpoint the first left, as a run restarted with --resume does)."""
+    import torch
+
+    from doabench.training.distributed import run_distributed
+    from doabench.training.trainer import TrainOptions
+    from test_training import energy_features, tiny_recipe, tiny_tracker
+
+    import doabench.training.trainer as trainer_module
+
+    trainer_module.plot_history = _no_plot
+    os.environ.update(RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank), MASTER_ADDR="127.0.0.1")
+    torch.set_num_threads(1)
+    for port, (max_epochs, resume) in zip(ports, runs):
+        os.environ["MASTER_PORT"] = str(port)  # a fresh rendezvous per invocation, as torchrun gives
+        opts = TrainOptions(tracker="tiny", out=Path(out), recipe=tiny_recipe(**DDP_RECIPE), progress=False,
+                            workers=0, precision="fp32", max_epochs=max_epochs, resume=resume)
+        run_distributed(opts, log=lambda m: None, timeout_s=120, tracker=tiny_tracker(), feature_fn=energy_features,
+                        train_cache=caches[0], val_cache=caches[1])
+
+
+def _free_ports(n: int) -> list[int]:
+    import socket
+
+    sockets = [socket.socket() for _ in range(n)]
+    try:
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
+
+
+def _launch(world: int, out: str, caches: tuple, runs: list) -> None:
+    import torch.multiprocessing as mp
+
+    args = (world, _free_ports(len(runs)), out, caches, runs)
+    ctx = mp.start_processes(_ddp_rank, args=args, nprocs=world, join=False, start_method="spawn")
+    try:
+        with deadline(120, f"{world}-process training"):
+            while not ctx.join(timeout=1):
+                pass
+    finally:
+        for p in ctx.processes:
+            if p.is_alive():
+                p.kill()
+
+
+def test_two_processes_train_the_weights_of_one_and_resume(tmp_path, monkeypatch):
+    from doabench.training import checkpoint as ckpt
+    from doabench.training.trainer import TrainOptions, Trainer
+    from test_training import energy_features, make_cache, tiny_recipe, tiny_tracker
+
+    monkeypatch.setattr("doabench.training.trainer.plot_history", _no_plot)
+    caches = (make_cache(tmp_path / "train", 6, 1), make_cache(tmp_path / "val", 2, 2))
+    one = tmp_path / "one"
+    opts = TrainOptions(tracker="tiny", out=one, recipe=tiny_recipe(**DDP_RECIPE), progress=False, workers=0,
+                        precision="fp32")
+    Trainer(opts, tracker=tiny_tracker(), feature_fn=energy_features, train_cache=caches[0], val_cache=caches[1],
+            log=lambda m: None).run()
+    two = tmp_path / "two"
+    _launch(2, str(two), caches, [(1, False), (None, True)])  # 1 epoch, stopped, then resumed for the second
+    a, b = ckpt.load_checkpoint(one / ckpt.LATEST), ckpt.load_checkpoint(two / ckpt.LATEST)
+    assert b["epoch"] == 2 and set(a["model"]) == set(b["model"])
+    init = tiny_tracker().network.state_dict()
+    for name in a["model"]:
+        torch.testing.assert_close(b["model"][name], a["model"][name], rtol=1e-5, atol=1e-6)
+        assert not torch.allclose(a["model"][name], init[name], atol=1e-4)  # the steps did move the weights
+    for ha, hb in zip(a["history"], b["history"], strict=True):
+        assert hb["train_loss"] == pytest.approx(ha["train_loss"], rel=1e-5)
+        assert hb["val_rmsae_all"] == pytest.approx(ha["val_rmsae_all"], rel=1e-4)
+        assert hb["trajectories_seen"] == ha["trajectories_seen"]
+    assert len((two / "log.csv").read_text().splitlines()) == 3  # header + 2 epochs, written once
+    assert json.loads((two / "distributed.json").read_text())["world_size"] == 2
+
+
+def test_sweep_with_options_finds_its_own_finished_runs(task_dir, tmp_path, capsys):
+    """Runs with options or exact delays are named by a configuration hash; a second sweep with
+    the same settings must find them (and rerun nothing)."""
+    out = tmp_path / "results"
+    args = ["sweep", "--trackers", "srp-max:4x8", "--tasks", TASK, "--episodes", "1", "--delays", "exact",
+            "--quiet", "--out", str(out)]
+    assert main(args) == 0
+    names = [p.name for p in out.glob("*.json")]
+    assert len(names) == 1 and names[0].startswith(f"{TASK}__srp-max_4x8__")
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "(0 run now, 1 already done, 0 failed)" in capsys.readouterr().out

@@ -462,7 +462,6 @@ def hold_during_pauses(points: np.ndarray, pauses: Sequence[tuple[int, int]], n_
     if total == 0:  # silent throughout: nowhere to walk
         return np.repeat(points[:1], S, axis=0)
     a_c = np.interp(centres, np.arange(n_samples + 1), talking)
-    a_first, a_last = np.interp(centres[[0, -1]], np.arange(n_samples + 1), talking)
-    u = (a_c - a_first) / max(a_last - a_first, 1e-12) * (S - 1)  # fractional index into the path
+    u = (a_c - a_c[0]) / max(a_c[-1] - a_c[0], 1e-12) * (S - 1)  # fractional index into the path
     idx = np.arange(S)
     return np.stack([np.interp(u, idx, points[:, k]) for k in range(3)], axis=1)
