@@ -226,3 +226,27 @@ def test_pause_hold_stops_the_talker_while_silent_and_pause_after_delays_pauses(
         SceneDistribution(pause_after_s=-1.0)
     with pytest.raises(ConfigError, match="pause_hold"):
         SceneDistribution(pause_hold="yes")
+
+
+def test_sim_train_talkers_stand_still_in_their_pauses():
+    """sim-train v2 trains holding: a silent frame's label is where the talker stopped."""
+    from doabench.acoustics.trajectories import segment_bounds
+    from doabench.envs.registry import get_task_spec
+    from doabench.training.pipeline import scene_distribution
+    from doabench.training.recipes import paper_recipe
+
+    spec = get_task_spec("sim-train")
+    dist = scene_distribution(spec, paper_recipe())
+    assert spec.version >= 2 and dist.pause_hold and dist.pause_after_s == 2.0
+    held = 0
+    for seed in range(40):
+        scene = sample_scene(dist, seed)
+        if not scene.speech_pauses or scene.static:
+            continue
+        bounds = segment_bounds(dist.n_samples, dist.n_points)
+        inside = np.array([any(a <= lo and hi <= b for a, b in scene.speech_pauses)
+                           for lo, hi in zip(bounds[:-1], bounds[1:])])
+        steps = np.linalg.norm(np.diff(scene.trajectory, axis=0), axis=1)
+        assert np.all(steps[inside[1:] & inside[:-1]] == 0)
+        held += int(inside.any())
+    assert held >= 5

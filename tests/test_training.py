@@ -363,3 +363,63 @@ def test_resume_from_a_compact_state_continues_closely(tmp_path, caches):
     state = ckpt.load_checkpoint(tmp_path / "b" / ckpt.LATEST)  # written by the trainer again: float32
     assert not state.get("compact") and all(
         v.dtype == torch.float32 for p in state["optimizer"]["state"].values() for v in p.values())
+
+
+class TrainedTinyTracker(TinyTracker):
+    """A tiny tracker that says it loaded trained weights (a fine-tuning start)."""
+
+    trained = True
+
+    def describe(self):
+        d = super().describe()
+        d.update(weights="/somewhere/tiny.safetensors", weights_hash="ab" * 32,
+                 training={"trajectories_seen": 100, "compute_s": 50.0})
+        return d
+
+
+def test_a_run_from_trained_weights_records_its_start_and_the_export_its_totals(tmp_path, caches):
+    from safetensors import safe_open
+
+    from doabench.training.checkpoint import load_checkpoint
+    from doabench.training.export import export_weights
+
+    opts = TrainOptions(tracker="tiny", out=tmp_path / "run", recipe=tiny_recipe(), progress=False, max_epochs=1)
+    torch.manual_seed(0)
+    logged: list[str] = []
+    Trainer(opts, tracker=TrainedTinyTracker(), feature_fn=energy_features, train_cache=caches[0],
+            val_cache=caches[1], log=logged.append).run()
+    start = load_checkpoint(tmp_path / "run" / "checkpoint.safetensors")["initial_weights"]
+    assert start["weights"] == "tiny.safetensors" and start["sha256"] == "ab" * 32
+    assert start["validation"]["val_rmsae_all"] > 0 and any(m.startswith("starting weights") for m in logged)
+    path = export_weights(tmp_path / "run", tmp_path / "w.safetensors", "latest", tracker=tiny_tracker())
+    with safe_open(str(path), "pt") as f:
+        training = json.loads(f.metadata()["doabench"])["training"]
+    assert training["fine_tuned_from"]["sha256"] == "ab" * 32
+    assert training["trajectories_seen"] == 4 and training["trajectories_seen_total"] == 104
+    assert training["compute_s_total"] == pytest.approx(50.0 + training["compute_s"], abs=0.11)
+    # a run from scratch records no start
+    make_trainer(tmp_path / "scratch", caches, max_epochs=1).run()
+    assert load_checkpoint(tmp_path / "scratch" / "checkpoint.safetensors")["initial_weights"] is None
+
+
+def test_resume_refuses_a_run_of_another_task_version(tmp_path, caches):
+    from doabench.training import checkpoint as ckpt
+
+    make_trainer(tmp_path / "run", caches, max_epochs=1).run()
+    path = tmp_path / "run" / ckpt.LATEST
+    state = ckpt.load_checkpoint(path)
+    assert state["task_version"] == doabench.get_task_spec("sim-train").version
+    make_trainer(tmp_path / "run", caches, resume=True, max_epochs=0)  # same version: resumes
+    state["task_version"] = 99
+    ckpt.save_checkpoint(path, state)
+    with pytest.raises(doabench.DoabenchError, match="version 99"):
+        make_trainer(tmp_path / "run", caches, resume=True)
+
+
+def test_finetune_preset_is_the_papers_second_phase_at_a_gentler_start():
+    from doabench.training.recipes import get_recipe, paper_recipe
+
+    ft, paper = get_recipe("finetune"), paper_recipe()
+    assert ft.data == "simulate" and ft.trajectories_per_epoch == paper.trajectories_per_epoch
+    assert [(p.snr, p.batch_size) for p in ft.phases] == [(paper.phases[1].snr, paper.phases[1].batch_size)] * 2
+    assert [p.lr for p in ft.phases] == [3e-5, paper.phases[1].lr]

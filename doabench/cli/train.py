@@ -20,7 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_tracker_options(p, help="learned tracker to train: cross3d:16x32 (any resolution), max-cnn1d, gcc-cnn1d, "
                                 "spec-cnn2d, seldnet, or a package.module:Class plug-in with a trainable network")
     p.add_argument("--task", default="sim-train", help="training distribution (default: sim-train)")
-    p.add_argument("--preset", choices=["paper", "cpu"], default="paper", help="training recipe (default: paper)")
+    p.add_argument("--preset", choices=["paper", "cpu", "finetune"], default="paper",
+                   help="training recipe (default: paper); finetune: 10 epochs at the paper's second phase "
+                        "(lr 3e-5, then 1e-5) from the tracker's trained weights, for a changed training task")
     p.add_argument("--epochs", type=int, help="number of epochs (default: the preset's)")
     p.add_argument("--epoch-size", type=int, help="trajectories per epoch (default: the preset's)")
     p.add_argument("--cache-size", type=int, help="cached training trajectories (cpu preset)")
@@ -35,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="auto (default): bf16 autocast with float32 master weights where the CPU has native bf16 "
                         "(AVX-512 BF16/AMX) or on CUDA, else float32")
     p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=None,
-                   help="torch.compile the network (default: on for --preset paper; about 1-2 minutes of "
+                   help="torch.compile the network (default: on for --preset paper and finetune; about 1-2 minutes of "
                         "compilation per batch shape, then a faster step)")
     p.add_argument("--device", default="cpu", help="device the network trains on: cpu (default) or cuda")
     p.add_argument("--out", required=True, help="run folder: checkpoints, log.csv, loss.png")
@@ -118,7 +120,7 @@ def main(args: argparse.Namespace) -> int:
                         max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
                         dataset=Path(args.dataset) if args.dataset else None, epochs=args.epochs,
                         precision=args.precision, workers=args.workers, device=args.device,
-                        compile=args.preset == "paper" if args.compile is None else args.compile)
+                        compile=args.preset in ("paper", "finetune") if args.compile is None else args.compile)
     if args.build_cache:
         from doabench.training.distributed import is_distributed_launch
 

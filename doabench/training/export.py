@@ -21,7 +21,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
     history = state["history"]
     epoch = int(state.get("best_epoch") or state["epoch"]) if which == "best" else int(state["epoch"])
     row = next((h for h in history if h["epoch"] == epoch), history[-1] if history else {})
-    return {
+    meta = {
         "tracker": tracker_id or state["tracker"],
         "resolution": None if tracker.resolution is None else "%dx%d" % tuple(tracker.resolution),
         "array": spec.array,
@@ -32,7 +32,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
         "doabench_version": __version__,
         "torch_version": torch.__version__,
         "training": {
-            "task": spec.id, "task_version": spec.version, "recipe": state["recipe"],
+            "task": spec.id, "task_version": int(state.get("task_version") or spec.version), "recipe": state["recipe"],
             "checkpoint": which, "epochs_completed": epoch,
             "trajectories_seen": int(row.get("trajectories_seen") or state["trajectories_seen"]),
             "distinct_trajectories": int(row.get("trajectories_seen") or state["trajectories_seen"])
@@ -48,6 +48,14 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
             "validation_set": "fixed held-out-speaker trajectories (10% of the speakers), scene SNR",
         },
     }
+    start = state.get("initial_weights")
+    if start:  # a fine-tuned model: what it started from, and the totals over both runs
+        meta["training"]["fine_tuned_from"] = start
+        before = start.get("training") or {}
+        for key in ("trajectories_seen", "compute_s"):
+            if before.get(key) is not None:
+                meta["training"][f"{key}_total"] = round(meta["training"][key] + float(before[key]), 1)
+    return meta
 
 
 def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best", tracker: Any = None,

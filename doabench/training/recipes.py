@@ -119,7 +119,19 @@ def cpu_recipe() -> Recipe:
     )
 
 
-PRESETS = {"paper": paper_recipe, "cpu": cpu_recipe}
+def finetune_recipe() -> Recipe:
+    """Continue a trained model on a changed training distribution (beyond the paper): 10 epochs
+    of 585 fresh trajectories at the paper's second phase (SNR 5-30 dB, batch 10), lr 3e-5 for
+    five epochs, then the paper's final 1e-5. Start it from shipped weights (``--tracker
+    cross3d:16x32`` without ``weights=random``); the weights file records what it started from.
+    """
+    return Recipe(
+        name="finetune", epochs=10, trajectories_per_epoch=585, data="simulate", num_workers=4,
+        phases=(Phase(0, (5.0, 30.0), 10, 3e-5), Phase(5, (5.0, 30.0), 10, 1e-5)),
+    )
+
+
+PRESETS = {"paper": paper_recipe, "cpu": cpu_recipe, "finetune": finetune_recipe}
 
 
 def get_recipe(name: str) -> Recipe:

@@ -150,9 +150,18 @@ class Trainer:
         torch.manual_seed(recipe.seed)  # network initialisation
         self.tracker = tracker if tracker is not None else make_tracker(options.tracker, **options.tracker_options)
         check_trainable(self.tracker, options.tracker)
-        if getattr(self.tracker, "trained", False) and self.saved is None:
+        # What the run starts from: recorded in the checkpoint and in exported weights files.
+        self.initial_weights: dict[str, Any] | None = None
+        if self.saved is not None:
+            self._check_task_version()
+            self.initial_weights = self.saved.get("initial_weights")
+        elif getattr(self.tracker, "trained", False):
             log(f"note: {options.tracker} loaded trained weights and training starts from them "
                 "(pass --tracker-opt weights=random to train from scratch)")
+            described = self.tracker.describe() if hasattr(self.tracker, "describe") else {}
+            weights = described.get("weights")
+            self.initial_weights = {"weights": None if weights is None else Path(weights).name,
+                                    "sha256": described.get("weights_hash"), "training": described.get("training")}
         if recipe.t60 is None and "t60" in (defaults := training_defaults(self.tracker)):
             recipe = recipe.replace(t60=tuple(defaults["t60"]))
         self.recipe = recipe
@@ -185,6 +194,20 @@ class Trainer:
             raise ConfigError(f"{self.out} already holds a training run; pass --resume to continue it "
                               "or choose another --out")
         return ckpt.load_checkpoint(path)
+
+    def _check_task_version(self) -> None:
+        """A run continues on the task version it started with: a changed training distribution
+        would silently mix two datasets in one run."""
+        version = self.saved.get("task_version")
+        config = self.out / "config.json"
+        if version is None and config.exists():  # states written before checkpoints recorded it
+            import json
+
+            version = json.loads(config.read_text()).get("task_version")
+        if version is not None and int(version) != int(self.spec.version):
+            raise ConfigError(f"{self.out} was trained on {self.spec.id} version {version} and the task is now "
+                              f"version {self.spec.version}; start a new run (another --out) or continue it with "
+                              f"the version {version} task file")
 
     def _default_features(self) -> FeatureFn:
         """Batched features ``(B, M, L)`` audio -> ``{kind: (B, T, ...)}`` tensors on the training
@@ -343,6 +366,11 @@ class Trainer:
         if self.is_writer:  # data-parallel hook
             write_json(self.out / "config.json", self.describe())
         val = self.prepare_validation()
+        if self.initial_weights is not None and "validation" not in self.initial_weights:
+            # the starting point on this run's validation set, to compare the epochs with
+            self.initial_weights["validation"] = start_metrics = self.validate(val)
+            self.log(f"starting weights: val loss {start_metrics['val_loss']:.4f}, val RMSAE "
+                     f"{start_metrics['val_rmsae_all']:.2f} deg (non-silent {start_metrics['val_rmsae_nonsilent']:.2f})")
         ran = 0
         for epoch in range(start, self.recipe.epochs):
             if self.options.max_epochs is not None and ran >= self.options.max_epochs:
@@ -383,7 +411,8 @@ class Trainer:
             state = {"epoch": epoch + 1, "model": self.network.state_dict(), "best_model": best_weights,
                      "best_epoch": best_epoch, "optimizer": self.optimizer.state_dict(),
                      "rng": ckpt.rng_state(), "recipe": self.recipe.to_dict(), "tracker": self.options.tracker,
-                     "task": self.spec.id, "history": history, "compute_s": compute_s, "trajectories_seen": seen,
+                     "task": self.spec.id, "task_version": self.spec.version,
+                     "initial_weights": self.initial_weights, "history": history, "compute_s": compute_s, "trajectories_seen": seen,
                      "threads": torch.get_num_threads(), "precision": self.precision,
                      "device": str(self.device), "workers": self.workers, "compiled": bool(self.options.compile),
                      "best": best}
@@ -404,6 +433,8 @@ class Trainer:
                 "resolution": None if self.tracker.resolution is None else list(self.tracker.resolution),
                 "dataset": None if self.options.dataset is None else str(self.options.dataset),
                 "train_cache": None if self.train_cache_dir is None else str(self.train_cache_dir),
+                "initial_weights": None if self.initial_weights is None else {
+                    k: self.initial_weights.get(k) for k in ("weights", "sha256")},
                 "threads": torch.get_num_threads(), "torch": torch.__version__, "precision": self.precision,
                 "compile": bool(self.options.compile), "workers": self.workers, "device": str(self.device)}
 
