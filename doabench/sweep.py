@@ -67,11 +67,13 @@ def partial_path_for(out: Path, task_id: str, tracker_id: str, options: dict[str
 
 
 def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | None, delays: str,
-                     options: dict[str, Any], weights_hash: str | None = None) -> Path | None:
+                     options: dict[str, Any], weights_hash: str | None = None,
+                     tracker_version: str | None = None) -> Path | None:
     """The results file of a finished run with these settings, else None (the run is (re)done).
 
     ``weights_hash``: the tracker's weights now (``Tracker.weights_hash()``); a file written with
-    other weights (e.g. before new shipped weights) is not finished for this sweep."""
+    other weights (e.g. before new shipped weights) is not finished for this sweep. Likewise a
+    file written by another ``tracker_version`` (``Tracker.version``) when one is given."""
     from doabench.envs.registry import get_task_spec
 
     path = out / f"{run_stem(task_id, tracker_id, options, delays)}.json"
@@ -85,7 +87,8 @@ def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | N
         same = (r["task"]["id"] == spec.id and int(r["task"]["version"]) == spec.version
                 and r["tracker"]["id"] == tracker_id and (r["tracker"].get("options") or {}) == options
                 and r["features"]["delays"] == delays and int(r["task"]["episodes_run"]) == want
-                and r["tracker"].get("weights_hash") == weights_hash)
+                and r["tracker"].get("weights_hash") == weights_hash
+                and (tracker_version is None or str(r["tracker"].get("version")) == str(tracker_version)))
     except (OSError, ValueError, KeyError, TypeError, DoabenchError):
         return None
     return path if same else None
@@ -144,13 +147,17 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     trackers, tasks = parse_list(trackers, "trackers"), parse_list(tasks, "tasks")
     options = dict(tracker_options or {})
     task_ids = [get_task_spec(t).id for t in tasks]  # unknown ids: one line, before any work
-    weights = {t: make_tracker(t, **options).weights_hash() for t in trackers}
+    built = {t: make_tracker(t, **options) for t in trackers}
+    weights = {t: tracker.weights_hash() for t, tracker in built.items()}
+    versions = {t: tracker.version for t, tracker in built.items()}
+    del built
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs = [SweepRun(tracker, task) for task in task_ids for tracker in trackers]
     todo = []
     for run in runs:
-        path = finished_results(out, run.task, run.tracker, episodes, delays, options, weights[run.tracker])
+        path = finished_results(out, run.task, run.tracker, episodes, delays, options, weights[run.tracker],
+                                versions[run.tracker])
         if path is not None:
             run.status, run.json_path = "skipped", path
             log(f"{run.tracker} on {run.task}: already done ({path.name})")

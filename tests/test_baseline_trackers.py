@@ -186,3 +186,39 @@ def test_training_protocol(text, tmp_path):
         warnings.simplefilter("error")
         loaded = doabench.make_tracker(text, weights=str(path))
     assert loaded.describe()["training"] == {"epochs_completed": 1}
+
+
+def test_hold_in_silences_repeats_the_last_informed_frame():
+    d = np.arange(10, dtype=float)[:, None] * np.ones((1, 3))
+    vad = np.array([0, 1, 0, 0, 0, 0, 1, 0, 0, 0], bool)
+    out = T.hold_in_silences(d, vad, 2)
+    # frame 0: no voice yet (as is); 2: one silent frame (as is); 3-5 hold frame 2; 6 voiced; 7 as is; 8-9 hold 7
+    assert out[:, 0].tolist() == [0, 1, 2, 2, 2, 2, 6, 7, 7, 7]
+    assert np.array_equal(T.hold_in_silences(d, np.zeros(10, bool), 2), d)
+
+
+@pytest.mark.parametrize("text", ["cross3d:4x8", "max-cnn1d"])
+def test_hold_beyond_half_the_receptive_field_in_step_and_track(text):
+    tracker = _make(text)
+    rf = tracker.receptive_field_frames
+    assert tracker.hold_frames == rf // 2 and tracker.describe()["hold_frames"] == rf // 2
+    nao = doabench.get_array("nao")
+    n = 3 * rf
+    ep = _episode(tracker, n, seed=3)
+    ep["vad"] = np.r_[np.zeros(3), np.ones(rf), np.zeros(n - rf - 3)]
+    tracker.reset(nao)
+    stepped = np.stack([tracker.step({k: v[t] for k, v in ep.items()}) for t in range(n)])
+    tracker.reset(nao)
+    tracked = tracker.track(ep)
+    np.testing.assert_allclose(stepped, tracked, atol=1e-5)
+    start = 3 + rf - 1 + rf // 2  # the first held frame: hold frames after the last voiced one
+    assert np.allclose(tracked[start:], tracked[start - 1])
+    assert not np.allclose(tracked[start - 1], tracked[start - 2])  # the model still moves before
+    off = _make(text, hold="off")
+    off.reset(nao)
+    free = off.track(ep)
+    assert off.hold_frames is None and np.allclose(free[:start], tracked[:start])
+    assert not np.allclose(free[start:], tracked[start - 1])
+    assert _make(text, hold=5).hold_frames == 5
+    with pytest.raises(ConfigError, match="hold must be"):
+        _make(text, hold="sometimes")

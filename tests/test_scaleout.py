@@ -236,6 +236,27 @@ def test_sweep_redoes_a_run_whose_tracker_weights_changed(task_dir, tmp_path, ca
     assert json.loads(path.read_text())["tracker"]["weights_hash"] is None
 
 
+def test_sweep_redoes_a_run_of_another_tracker_version(task_dir, tmp_path, capsys):
+    """A results file from an older version of the tracker (e.g. before the learned trackers held
+    in silences) is redone; the configuration is the same, so no --overwrite is needed."""
+    import json
+
+    out = tmp_path / "results"
+    args = ["sweep", "--trackers", "srp-max:4x8", "--tasks", TASK, "--episodes", "1", "--quiet", "--out", str(out)]
+    assert main(args) == 0
+    path = out / f"{TASK}__srp-max_4x8.json"
+    record = json.loads(path.read_text())
+    current = record["tracker"]["version"]
+    record["tracker"]["version"] = "0"
+    path.write_text(json.dumps(record))
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "(1 run now, 0 already done, 0 failed)" in capsys.readouterr().out
+    assert json.loads(path.read_text())["tracker"]["version"] == current
+    assert main(args) == 0
+    assert "(0 run now, 1 already done, 0 failed)" in capsys.readouterr().out
+
+
 def test_sweep_reports_a_failing_run_and_goes_on(task_dir, tmp_path, monkeypatch, capsys):
     assert main(["sweep", "--trackers", "srp-max:4x8x9", "--tasks", TASK_B, "--out", str(tmp_path)]) == 2
     assert "4x8x9" in capsys.readouterr().err  # a bad tracker id: one line, before any run
