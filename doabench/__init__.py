@@ -5,7 +5,7 @@ Public API::
     import doabench
     doabench.Tracker, doabench.register_tracker, doabench.make_tracker   # trackers
     doabench.register_task, doabench.get_task_spec, doabench.available_tasks  # tasks
-    env = gymnasium.make("doabench/sim-demo-v1", features=("srp",), resolution=(16, 32))
+    env = gymnasium.make("doabench/sim-demo-v2", features=("srp",), resolution=(16, 32))
     doabench.run(tracker="srp-max", task="sim-demo")                   # scored results dict
     doabench.srp_maps(audio, "nao")    # SRP-PHAT maps + grid angles + argmax directions in one call
 

@@ -1,9 +1,8 @@
 #!/usr/bin/env bash
 # The paper-scale training queue of issue 12, in the issue's order: Cross3D 16x32, 8x16, 4x8,
 # gcc-cnn1d, max-cnn1d (64x128 maxima), spec-cnn2d, seldnet, all with `doabench train`'s paper
-# preset on sim-train, plus one fine-tuning step: Cross3D 16x32 was trained on sim-train v1
-# (talkers walked on through their pauses) and continues for 10 epochs on v2 (they stand still
-# while silent) with the finetune preset, replacing its shipped weights. Each run resumes from
+# preset on sim-train (an entry may name another preset, e.g. finetune, which starts from the
+# tracker's shipped weights instead of weights=random). Each run resumes from
 # training-runs/<name>/ (the committed run state); a finished run is exported to
 # baselines/weights/<weights>.safetensors (SHA256SUMS updated), its checkpoint is deleted
 # (log.csv, loss.png and config.json stay as the record) and training-runs/<name>/exported.txt
@@ -20,7 +19,6 @@ DOABENCH="${DOABENCH:-.venv/bin/doabench}"
 # (weights=random), finetune starts from the tracker's shipped weights
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32"
-    "cross3d:16x32 finetune cross3d-16x32-hold cross3d-16x32"
     "cross3d:8x16 paper cross3d-8x16 cross3d-8x16"
     "cross3d:4x8 paper cross3d-4x8 cross3d-4x8"
     "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d"

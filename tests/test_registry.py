@@ -26,7 +26,7 @@ def test_builtin_tasks_and_grid_cells_are_registered_with_gymnasium():
 
 
 def test_gym_id_and_plain_id_resolve_to_the_same_spec():
-    assert doabench.get_task_spec("doabench/sim-demo-v1") is doabench.get_task_spec("sim-demo")
+    assert doabench.get_task_spec("doabench/sim-demo-v2") is doabench.get_task_spec("sim-demo")
 
 
 def test_unknown_task_lists_close_matches():

@@ -28,7 +28,7 @@ def test_check_env_passes_for_every_simulated_task(task_id, librispeech_root):
 
 
 def test_reset_with_seed_is_deterministic_and_truth_comes_after_the_step():
-    env = gymnasium.make("doabench/sim-demo-v1", features=("srp", "gcc"), resolution=(8, 16),
+    env = gymnasium.make("doabench/sim-demo-v2", features=("srp", "gcc"), resolution=(8, 16),
                          scene_overrides=QUICK_SCENE)
     obs1, info1 = env.reset(seed=7)
     obs2, info2 = env.reset(seed=7)

@@ -1,4 +1,4 @@
-"""scripts/train_queue.sh: order, resume, fine-tuning step and exports, with a stand-in doabench
+"""scripts/train_queue.sh: order, resume and exports, with a stand-in doabench
 that records its calls (the real runs take hours)."""
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def run_queue(tree: Path) -> list[str]:
     return (tree / "calls.txt").read_text().splitlines()
 
 
-def test_queue_skips_exported_runs_resumes_and_fine_tunes_from_shipped_weights(tree):
+def test_queue_skips_exported_runs_resumes_and_exports_in_order(tree):
     done = tree / "training-runs" / "cross3d-16x32"
     done.mkdir(parents=True)
     (done / "exported.txt").write_text("exported\n")
@@ -52,21 +52,18 @@ def test_queue_skips_exported_runs_resumes_and_fine_tunes_from_shipped_weights(t
     (half / "checkpoint.safetensors").write_text("state\n")
     calls = run_queue(tree)
     trains = [c for c in calls if "--export" not in c]
-    assert [c.split()[2] for c in trains] == ["cross3d:16x32", "cross3d:8x16", "cross3d:4x8", "gcc-cnn1d",
-                                               "max-cnn1d:64x128", "spec-cnn2d", "seldnet"]
-    finetune, rest = trains[0], trains[1:]
-    # the fine-tuning step starts from the shipped weights (no weights=random) and replaces them
-    assert "--preset finetune" in finetune and "weights=random" not in finetune and "--resume" not in finetune
-    assert all("--preset paper" in c and "weights=random" in c for c in rest)
-    assert "--resume" in rest[0] and all("--resume" not in c for c in rest[1:])
+    assert [c.split()[2] for c in trains] == ["cross3d:8x16", "cross3d:4x8", "gcc-cnn1d", "max-cnn1d:64x128",
+                                               "spec-cnn2d", "seldnet"]
+    assert all("--preset paper" in c and "weights=random" in c and "--librispeech /libri" in c for c in trains)
+    assert "--resume" in trains[0] and all("--resume" not in c for c in trains[1:])
     exports = [c.split("--export ")[1] for c in calls if "--export" in c]
-    assert exports[0] == "baselines/weights/cross3d-16x32.safetensors"
-    assert exports[1] == "baselines/weights/cross3d-8x16.safetensors"
-    for name in ("cross3d-16x32-hold", "cross3d-8x16", "seldnet"):
+    assert exports == ["baselines/weights/cross3d-8x16.safetensors", "baselines/weights/cross3d-4x8.safetensors",
+                       "baselines/weights/gcc-cnn1d.safetensors", "baselines/weights/max-cnn1d-64x128.safetensors",
+                       "baselines/weights/spec-cnn2d.safetensors", "baselines/weights/seldnet.safetensors"]
+    for name in ("cross3d-8x16", "max-cnn1d-64x128", "seldnet"):
         run = tree / "training-runs" / name
         assert (run / "exported.txt").exists() and not (run / "checkpoint.safetensors").exists()
-    assert "finetune preset" in (tree / "training-runs" / "cross3d-16x32-hold" / "exported.txt").read_text()
+    assert "paper preset" in (tree / "training-runs" / "seldnet" / "exported.txt").read_text()
     # a second call finds every run exported and trains nothing
-    (tree / "calls.txt").unlink()
     (tree / "calls.txt").write_text("")
     assert run_queue(tree) == []

@@ -3,15 +3,14 @@
  * Built and loaded by doabench/acoustics/native.py (ctypes; no Python headers needed). It
  * computes what doabench.acoustics.rir.render_images computes with torch ops, in one loop:
  * for every (point, image) pair within reach and every microphone, the distance, the amplitude
- * gain / d and the arrival time d fs / c, then the 34 taps of the Hann-windowed sinc centred on
- * that time, read from a table of OVER + 1 phases with linear interpolation between the two
- * neighbouring phases (the torch path does the same interpolation on a fine time grid followed by
- * a convolution with the same table, so both give the same samples up to float32 rounding).
+ * gain / d and the arrival time d fs / c, then the 32 taps of the Hann-windowed sinc (+-16
+ * samples) centred on that time, read from a table of the nearest of DB_OVER = 128 phases per
+ * sample (arrival times rounded to 1/128 sample: the same accuracy as the earlier linear
+ * interpolation between 8 phases, with half the table reads and no interpolation).
  *
- * Why a compiled loop: the torch path needs about fifteen elementwise passes plus two scatters
- * per (point, image, microphone) element, 26-50 ns per element on one core here; this loop keeps
- * everything in registers and writes 34 contiguous samples per element (numbers in
- * docs/performance.md).
+ * Why a compiled loop: the torch path needs about fifteen elementwise passes plus scatters per
+ * (point, image, microphone) element; this loop keeps everything in registers and writes 32
+ * contiguous samples (two 16-float vectors) per element (numbers in docs/performance.md).
  *
  * Floating point: built with -ffp-contract=off, so every product and sum is one IEEE float32
  * operation whatever the instruction set; samples accumulate in image order. Results are bitwise
@@ -21,11 +20,10 @@
 #include <stdint.h>
 #include <string.h>
 
-#define DB_HALF 16       /* SINC_HALF */
-#define DB_OVER 8        /* OVERSAMPLE: table phases per sample */
-#define DB_TAPS 34       /* samples one image touches: 2 * DB_HALF + 2 */
-#define DB_TAP_STRIDE 48 /* table row length (taps padded with zeros) */
-#define DB_BLOCK 64      /* images per block of the vectorised distance work */
+#define DB_HALF 16  /* SINC_HALF: the window spans +-16 samples */
+#define DB_OVER 128 /* OVERSAMPLE: table phases per sample (nearest phase) */
+#define DB_TAPS 32  /* samples one image touches: 2 * DB_HALF, two 16-float vectors */
+#define DB_BLOCK 64 /* images per block of the vectorised distance work */
 
 /* 16 floats; GCC/clang vector extensions compile to the widest vectors of the target (one
  * AVX-512 register, two AVX or four SSE/NEON registers). Unaligned loads and stores go through
@@ -40,11 +38,11 @@ static inline db_v16 db_load(const float *p) {
 
 static inline void db_store(float *p, db_v16 v) { memcpy(p, &v, sizeof v); }
 
-int doabench_image_kernel_version(void) { return 3; }
+int doabench_image_kernel_version(void) { return 4; }
 
 /* src (P, 3), mic (M, 3), sign (I, 3), offset (I, 3), gain (I): float32, contiguous, room
  * coordinates relative to a common origin (the array centre).
- * table (DB_OVER + 1, DB_TAP_STRIDE): table[ph][n] = windowed_sinc(n - DB_HALF - ph / DB_OVER).
+ * table (DB_OVER, DB_TAPS): table[ph][n] = windowed_sinc(n - (DB_HALF - 1) - ph / DB_OVER).
  * out: row (p, m) starts at out + (p * M + m) * stride (stride >= n_out); its first n_out samples
  * are written (zeroed first), the rest is left alone.
  * reach2: squared distance beyond which an image cannot reach sample n_out of any microphone.
@@ -53,8 +51,9 @@ int doabench_image_kernel_version(void) { return 3; }
  *
  * Loop order: per point, the images within reach are gathered once (structure of arrays); then
  * per microphone, blocks of images get their distances vectorised across images and their taps
- * added into that microphone's row, which stays in the L1 cache (the additions are the cost:
- * with all microphones' rows live, each image's 34 samples came from L2, 3x slower). */
+ * added into that microphone's row, which stays in the L1 cache with the 16 kB table (the
+ * additions are the cost: with all microphones' rows live, each image's samples came from L2,
+ * 3x slower). */
 int doabench_render_images(int64_t P, int64_t M, int64_t I, const float *restrict src,
                            const float *restrict mic, const float *restrict sign,
                            const float *restrict offset, const float *restrict gain, float reach2,
@@ -62,7 +61,7 @@ int doabench_render_images(int64_t P, int64_t M, int64_t I, const float *restric
                            int64_t n_out, int64_t stride, float *restrict work) {
     float *restrict ix = work, *restrict iy = work + (I + DB_BLOCK), *restrict iz = work + 2 * (I + DB_BLOCK);
     float *restrict ig = work + 3 * (I + DB_BLOCK);
-    float w0[DB_BLOCK], w1[DB_BLOCK];
+    float w[DB_BLOCK];
     int32_t q[DB_BLOCK];
     for (int64_t r = 0; r < P * M; r++) memset(out + r * stride, 0, (size_t)n_out * sizeof(float));
     for (int64_t p = 0; p < P; p++) {
@@ -83,33 +82,27 @@ int doabench_render_images(int64_t P, int64_t M, int64_t I, const float *restric
             float *row = out + (p * M + m) * stride;
             for (int64_t k0 = 0; k0 < K; k0 += DB_BLOCK) {
                 const int64_t nk = K - k0 < DB_BLOCK ? K - k0 : DB_BLOCK;
-                /* distances, amplitudes and fine-grid arrival times (vectorised) */
+                /* distances, amplitudes and arrival times on the 1/DB_OVER grid (vectorised) */
                 for (int64_t k = 0; k < nk; k++) {
                     const float dx = ix[k0 + k] - mx, dy = iy[k0 + k] - my, dz = iz[k0 + k] - mz;
                     float d = sqrtf(dx * dx + dy * dy + dz * dz);
                     d = d < 1e-6f ? 1e-6f : d;
-                    const float w = ig[k0 + k] / d;
-                    const float t = d * scale; /* >= 0 */
-                    const int32_t qk = (int32_t)t;
-                    const float frac = t - (float)qk;
-                    q[k] = qk;
-                    w1[k] = w * frac;
-                    w0[k] = w - w * frac;
+                    w[k] = ig[k0 + k] / d;
+                    q[k] = (int32_t)(d * scale + 0.5f); /* nearest phase (>= 0) */
                 }
-                /* 34 taps per image, interpolated between two neighbouring phases */
+                /* 32 taps per image from the nearest phase's table row */
                 for (int64_t k = 0; k < nk; k++) {
-                    const int64_t base = (int64_t)(q[k] / DB_OVER) - DB_HALF; /* first sample */
-                    const float *t0 = table + (q[k] % DB_OVER) * DB_TAP_STRIDE, *t1 = t0 + DB_TAP_STRIDE;
-                    const float a = w0[k], b = w1[k];
-                    if (base >= 0 && base + DB_TAP_STRIDE <= n_out) {
-                        /* three vectors of 16 taps; taps 34-47 of the table are zeros */
+                    const int64_t base = (int64_t)(q[k] / DB_OVER) - (DB_HALF - 1); /* first sample */
+                    const float *t = table + (q[k] % DB_OVER) * DB_TAPS;
+                    const float a = w[k];
+                    if (base >= 0 && base + DB_TAPS <= n_out) {
                         float *r = row + base;
-                        for (int n = 0; n < DB_TAP_STRIDE; n += 16)
-                            db_store(r + n, db_load(r + n) + (a * db_load(t0 + n) + b * db_load(t1 + n)));
+                        db_store(r, db_load(r) + a * db_load(t));
+                        db_store(r + 16, db_load(r + 16) + a * db_load(t + 16));
                     } else {
                         for (int n = 0; n < DB_TAPS; n++) {
                             const int64_t s = base + n;
-                            if (s >= 0 && s < n_out) row[s] += a * t0[n] + b * t1[n];
+                            if (s >= 0 && s < n_out) row[s] += a * t[n];
                         }
                     }
                 }

@@ -31,11 +31,10 @@ from pathlib import Path
 import numpy as np
 
 SOURCE = "image_sources.c"
-KERNEL_VERSION = 3  # doabench_image_kernel_version() of the source
+KERNEL_VERSION = 4  # doabench_image_kernel_version() of the source
 FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-fno-math-errno", "-shared", "-fPIC"]
-_HALF, _OVER = 16, 8  # SINC_HALF and OVERSAMPLE as compiled into the C source
-_TAPS = 34  # samples per image in the C source (2 * SINC_HALF + 2)
-_TAP_STRIDE = 48
+_HALF, _OVER = 16, 128  # SINC_HALF and OVERSAMPLE as compiled into the C source
+_TAPS = 32  # samples per image in the C source (2 * SINC_HALF)
 _BLOCK = 64  # DB_BLOCK
 
 _lock = threading.Lock()
@@ -136,15 +135,13 @@ def kernel_name() -> str:
 
 
 def tap_table(windowed_sinc, half: int, over: int) -> np.ndarray:
-    """``(over + 1, 48)`` float32: row ``ph`` holds ``windowed_sinc(n - half - ph / over)`` for
-    ``n < 2 half + 2``, zeros after."""
+    """``(over, 2 half)`` float32: row ``ph`` holds ``windowed_sinc(n - (half - 1) - ph / over)``,
+    the taps of an image arriving ``ph / over`` samples after an integer sample time."""
     if (half, over) != (_HALF, _OVER):
         raise ValueError(f"the C kernel is built for SINC_HALF {_HALF} and OVERSAMPLE {_OVER}")
     n = np.arange(_TAPS)[None, :]
-    ph = np.arange(over + 1)[:, None]
-    table = np.zeros((over + 1, _TAP_STRIDE), dtype=np.float32)
-    table[:, :_TAPS] = windowed_sinc(n - half - ph / over, half)
-    return table
+    ph = np.arange(over)[:, None]
+    return np.ascontiguousarray(windowed_sinc(n - (half - 1) - ph / over, half), dtype=np.float32)
 
 
 def render(lib, src: np.ndarray, mic: np.ndarray, sign: np.ndarray, offset: np.ndarray, gain: np.ndarray,
@@ -158,7 +155,7 @@ def render(lib, src: np.ndarray, mic: np.ndarray, sign: np.ndarray, offset: np.n
     if not all(a.dtype == np.float32 and a.flags.c_contiguous for a in arrays):
         raise ValueError("image kernel inputs must be C-contiguous float32 arrays")
     if (src.shape[1:], mic.shape[1:], sign.shape, offset.shape, table.shape) != (
-            (3,), (3,), (I, 3), (I, 3), (_OVER + 1, _TAP_STRIDE)):
+            (3,), (3,), (I, 3), (I, 3), (_OVER, _TAPS)):
         raise ValueError("image kernel inputs have the wrong shapes")
     if not (out.dtype == np.float32 and out.ndim == 3 and out.shape[:2] == (P, M) and out.shape[2] >= n_out >= 0
             and out.strides == (M * out.shape[2] * 4, out.shape[2] * 4, 4)):

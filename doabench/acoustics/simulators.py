@@ -354,7 +354,8 @@ class BuiltinSimulator(_TorchBackend):
             "doabench": __version__,
             "torch": torch.__version__,
             "device": str(self.device),
-            "sinc": f"hann-windowed, {2 * engine.SINC_HALF + 1} taps, 1/{engine.OVERSAMPLE}-sample grid",
+            "sinc": f"hann-windowed over +-{engine.SINC_HALF} samples, nearest of {engine.OVERSAMPLE} phases "
+                    "per sample",
             "hpf": "none",
             "tail": engine.TAIL_MODEL,
             "image_kernel": engine.image_kernel(self.device),
@@ -375,7 +376,7 @@ _PRA_WALLS = ("west", "east", "south", "north", "floor", "ceiling")  # = x0, x1,
 class PyroomacousticsSimulator(_TorchBackend):
     """The same model through pyroomacoustics' ShoeBox image sources.
 
-    Pinned settings (restored afterwards): ``frac_delay_length = 33`` (the builtin's sinc length),
+    Pinned settings (restored afterwards): ``frac_delay_length = 33`` (the builtin's sinc width, +-16),
     ``sinc_lut_granularity = 20``, ``rir_hpf_enable = False``, ``c = 343``; no air absorption, no
     ray tracing, no randomised ISM; ``max_order`` = the highest reflection order among the images
     that reach Tdiff. Its RIRs are shifted back by its ``frac_delay_length // 2`` global delay and
