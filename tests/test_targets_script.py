@@ -74,3 +74,16 @@ def test_pause_hold_bound(tmp_path):
     path.write_text(json.dumps({"frames": None}))
     out = subprocess.run([sys.executable, str(script), str(path)], capture_output=True, text=True)
     assert out.returncode == 2 and "no per-frame estimates" in out.stderr
+
+
+def test_silence_errors_counts_frames_since_voice():
+    import importlib.util
+
+    import numpy as np
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "silence_errors.py"
+    spec = importlib.util.spec_from_file_location("silence_errors", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    vad = np.array([0, 0, 1, 0, 0, 1, 1, 0], bool)
+    assert module.frames_since_voice(vad).tolist() == [-1, -1, 0, 1, 2, 0, 0, 1]

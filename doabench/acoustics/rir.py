@@ -44,9 +44,11 @@ SINC_HALF = 16  # windowed-sinc half width in samples (pyroomacoustics frac_dela
 OVERSAMPLE = 128  # arrival times rounded to 1/128 sample (the nearest tabulated sinc phase)
 _TAIL_FIT_MIN_SAMPLES = 32  # below this many usable ISM samples the tail level is theoretical
 _CHUNK_ELEMENTS = 4_000_000  # bounds the temporaries of one chunk of trajectory points
-# Elements (mics x images) per step of the torch path's per-image work: its (elements, taps)
-# temporaries stay in cache (the work is memory-bound; DRAM-sized temporaries were 2x slower).
+# Elements (mics x images) per step of the torch path's per-image work: on CPU its (elements,
+# taps) temporaries stay in cache (the work is memory-bound; DRAM-sized temporaries were 2x
+# slower); on CUDA larger steps keep the device busy.
 _SLICE_ELEMENTS = 8192
+_SLICE_ELEMENTS_CUDA = 1 << 20
 TAIL_MODEL = "shared: one diffuse tail per microphone for all trajectory points"  # provenance
 
 
@@ -312,7 +314,7 @@ def render_images(
     mic_sq = (mic * mic).sum(1, keepdim=True)
     tap = torch.arange(taps, device=device)
 
-    n_slice = max(1, _SLICE_ELEMENTS // M)
+    n_slice = max(1, (_SLICE_ELEMENTS if device.type == "cpu" else _SLICE_ELEMENTS_CUDA) // M)
     serial = single_threaded() if device.type == "cpu" else contextlib.nullcontext()
     with serial:  # slices are cache-sized: threads only add hand-off cost
         for k0 in range(0, pos.shape[1], n_slice):

@@ -1,0 +1,89 @@
+#!/usr/bin/env python3
+"""Where a learned tracker's validation error sits: per run of silent frames, and with holding.
+
+Scores a trainable tracker's network on the fixed validation set of ``doabench train`` (the
+30 held-out-speaker trajectories of the training task, built in ``runs/cache`` if missing), the
+same frames the training log's validation columns pool. Prints the RMSAE and share of the squared
+error per number of frames since the last voice-active frame, then the all-frames RMSAE when the
+estimate is held after ``N`` silent frames (``hold_in_silences`` of the baselines, the rule the
+trackers' ``hold`` option applies) for each ``--holds`` value. The network runs raw (``hold=off``).
+
+    python scripts/silence_errors.py --tracker cross3d:16x32 --librispeech ../shared/data/LibriSpeech
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+BUCKETS = ((1, 3), (3, 6), (6, 11), (11, 21), (21, 31), (31, 41), (41, None))
+
+
+def frames_since_voice(vad: np.ndarray) -> np.ndarray:
+    """``(T,)`` frames since the last voice-active frame (0 on one; -1 before the first)."""
+    index = np.arange(len(vad))
+    last = np.maximum.accumulate(np.where(vad, index, -1))
+    return np.where(last >= 0, index - last, -1)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--tracker", required=True)
+    p.add_argument("--weights", help="weights file (default: the shipped one)")
+    p.add_argument("--task", default="sim-train")
+    p.add_argument("--librispeech")
+    p.add_argument("--holds", default="6,11,16,21,26,31", help="comma-separated frame counts")
+    args = p.parse_args(argv)
+
+    from doabench.training.recipes import get_recipe
+    from doabench.training.trainer import Trainer, TrainOptions, angular_errors_deg
+    from doabench_baselines.trackers import hold_in_silences
+
+    torch.set_num_threads(1)
+    options = {"hold": "off"} | ({"weights": args.weights} if args.weights else {})
+    with tempfile.TemporaryDirectory() as out:
+        trainer = Trainer(TrainOptions(tracker=args.tracker, out=Path(out), recipe=get_recipe("paper"), task=args.task,
+                                       progress=False, librispeech=args.librispeech, tracker_options=options),
+                          log=lambda m: None)
+        val = trainer.prepare_validation()
+    trainer.network.eval()
+    outputs, truths, vads = [], [], []
+    with torch.no_grad():
+        for x, truth, vad in val:
+            y = trainer.forward(x, truth)
+            y = y / y.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+            outputs += list(y.double().numpy())
+            truths += list(truth.double().numpy())
+            vads += list(vad.numpy().astype(bool))
+
+    def errors(directions: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate([angular_errors_deg(torch.from_numpy(d), torch.from_numpy(t)).numpy()
+                               for d, t in zip(directions, truths)])
+
+    def rms(e: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+
+    e = errors(outputs)
+    since = np.concatenate([frames_since_voice(v) for v in vads])
+    total = float(np.sum(e**2))
+    print(f"{args.tracker} on the {args.task} validation set ({len(vads)} trajectories, {e.size} frames): "
+          f"all {rms(e):.2f} deg, non-silent {rms(e[since == 0]):.2f} deg")
+    print("| frames since voice | frames | RMSAE (deg) | share of the squared error |")
+    print("|---|---|---|---|")
+    rows = [("0 (voice-active)", since == 0)]
+    rows += [(f"{lo}-{hi - 1}" if hi else f"{lo} and more", (since >= lo) & ((since < hi) if hi else True))
+             for lo, hi in BUCKETS]
+    rows.append(("before the first voice", since < 0))
+    for label, mask in rows:
+        print(f"| {label} | {int(mask.sum()):,} | {rms(e[mask]):.2f} | {np.sum(e[mask] ** 2) / total:.2f} |")
+    for hold in (int(h) for h in args.holds.split(",") if h.strip()):
+        held = [hold_in_silences(d, v, hold) for d, v in zip(outputs, vads)]
+        print(f"hold after {hold} silent frames: all {rms(errors(held)):.2f} deg")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
