@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The paper comparison of issue 12, section 5, once the paper-scale models are shipped
-# (scripts/train_queue.sh): every tracker with its shipped weights on sim-grid (v1, 20 episodes
+# (scripts/train_queue.sh): every tracker with its shipped weights on sim-grid (v2, 20 episodes
 # per T60 x SNR cell), sim-pauses and sim-fan, into results/ (resumable: `doabench sweep` skips
 # finished runs and resumes interrupted ones), then the leaderboards, the Fig. 6 / Fig. 8 plots
 # and the target check (scripts/cross3d_targets.py, exit status 1 while a target is missed).
