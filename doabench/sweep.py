@@ -75,6 +75,7 @@ def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | N
     other weights (e.g. before new shipped weights) is not finished for this sweep. Likewise a
     file written by another ``tracker_version`` (``Tracker.version``) when one is given."""
     from doabench.envs.registry import get_task_spec
+    from doabench.results.writer import configuration, results_configuration
 
     path = out / f"{run_stem(task_id, tracker_id, options, delays)}.json"
     if not path.is_file() or partial_path_for(out, task_id, tracker_id, options, delays).exists():
@@ -84,10 +85,11 @@ def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | N
         spec = get_task_spec(task_id)
         total = int(r["task"]["episodes_total"])
         want = total if episodes is None else min(int(episodes), total)
-        same = (r["task"]["id"] == spec.id and int(r["task"]["version"]) == spec.version
-                and r["tracker"]["id"] == tracker_id and (r["tracker"].get("options") or {}) == options
-                and r["features"]["delays"] == delays and int(r["task"]["episodes_run"]) == want
-                and r["tracker"].get("weights_hash") == weights_hash
+        # the same configuration (results.writer.configuration: task and version, tracker, options,
+        # weights, delays), as many episodes, and the same tracker version
+        same = (results_configuration(r) == configuration(spec.id, spec.version, tracker_id, options,
+                                                          weights_hash, delays)
+                and int(r["task"]["episodes_run"]) == want
                 and (tracker_version is None or str(r["tracker"].get("version")) == str(tracker_version)))
     except (OSError, ValueError, KeyError, TypeError, DoabenchError):
         return None
