@@ -1,14 +1,17 @@
 #!/usr/bin/env python3
-"""Where a learned tracker's validation error sits: per run of silent frames, and with holding.
+"""Where a tracker's error sits: per run of silent frames, and with holding.
 
-Scores a trainable tracker's network on the fixed validation set of ``doabench train`` (the
-30 held-out-speaker trajectories of the training task, built in ``runs/cache`` if missing), the
-same frames the training log's validation columns pool. Prints the RMSAE and share of the squared
-error per number of frames since the last voice-active frame, then the all-frames RMSAE when the
-estimate is held after ``N`` silent frames (``hold_in_silences`` of the baselines, the rule the
-trackers' ``hold`` option applies) for each ``--holds`` value. The network runs raw (``hold=off``).
+With ``--tracker``: scores a trainable tracker's network on the fixed validation set of
+``doabench train`` (the 30 held-out-speaker trajectories of the training task, built in
+``runs/cache`` if missing), the same frames the training log's validation columns pool; the
+network runs raw (``hold=off``). With ``--results FILE``: the per-frame estimates of a results file
+written without ``--no-frames`` (any tracker, any task). Prints the RMSAE and share of the squared
+error per number of frames since the last voice-active frame (and before the first one), then the
+all-frames RMSAE when the estimate is held after ``N`` silent frames (``hold_in_silences`` of the
+baselines, the rule the learned trackers' ``hold`` option applies) for each ``--holds`` value.
 
     python scripts/silence_errors.py --tracker cross3d:16x32 --librispeech ../shared/data/LibriSpeech
+    python scripts/silence_errors.py --results runs/fig7/sim-grid__cross3d_16x32.json
 """
 from __future__ import annotations
 
@@ -31,16 +34,68 @@ def frames_since_voice(vad: np.ndarray) -> np.ndarray:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--tracker", required=True)
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--tracker", help="trainable tracker scored on the training task's validation set")
+    source.add_argument("--results", type=Path, help="results file with per-frame estimates")
     p.add_argument("--weights", help="weights file (default: the shipped one)")
     p.add_argument("--task", default="sim-train")
     p.add_argument("--librispeech")
     p.add_argument("--holds", default="6,11,16,21,26,31", help="comma-separated frame counts")
     args = p.parse_args(argv)
 
-    from doabench.training.recipes import get_recipe
-    from doabench.training.trainer import Trainer, TrainOptions, angular_errors_deg
     from doabench_baselines.trackers import hold_in_silences
+
+    if args.results is not None:
+        name, outputs, truths, vads = _from_results(args.results)
+    else:
+        name = f"{args.tracker} on the {args.task} validation set"
+        outputs, truths, vads = _from_validation(args)
+
+    def errors(directions: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate([np.degrees(np.arccos(np.clip((d * t).sum(-1), -1.0, 1.0)))
+                               for d, t in zip(directions, truths)])
+
+    def rms(e: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+
+    e = errors(outputs)
+    since = np.concatenate([frames_since_voice(v) for v in vads])
+    total = float(np.sum(e**2))
+    print(f"{name} ({len(vads)} trajectories, {e.size} frames): "
+          f"all {rms(e):.2f} deg, non-silent {rms(e[since == 0]):.2f} deg")
+    print("| frames since voice | frames | RMSAE (deg) | share of the squared error |")
+    print("|---|---|---|---|")
+    rows = [("0 (voice-active)", since == 0)]
+    rows += [(f"{lo}-{hi - 1}" if hi else f"{lo} and more", (since >= lo) & ((since < hi) if hi else True))
+             for lo, hi in BUCKETS]
+    rows.append(("before the first voice", since < 0))
+    for label, mask in rows:
+        print(f"| {label} | {int(mask.sum()):,} | {rms(e[mask]):.2f} | {np.sum(e[mask] ** 2) / total:.2f} |")
+    for hold in (int(h) for h in args.holds.split(",") if h.strip()):
+        held = [hold_in_silences(d, v, hold) for d, v in zip(outputs, vads)]
+        print(f"hold after {hold} silent frames: all {rms(errors(held)):.2f} deg")
+    return 0
+
+
+def _unit(a) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    return a / np.linalg.norm(a, axis=-1, keepdims=True)
+
+
+def _from_results(path: Path) -> tuple[str, list, list, list]:
+    import json
+
+    r = json.loads(path.read_text())
+    if not r.get("frames"):
+        raise SystemExit(f"error: {path} has no per-frame estimates (written with --no-frames?)")
+    frames = r["frames"]
+    return (f"{r['tracker']['id']} on {r['task']['id']} v{r['task']['version']}", [_unit(f["estimates"]) for f in frames],
+            [_unit(f["truth"]) for f in frames], [np.asarray(f["vad"], bool) for f in frames])
+
+
+def _from_validation(args: argparse.Namespace) -> tuple[list, list, list]:
+    from doabench.training.recipes import get_recipe
+    from doabench.training.trainer import Trainer, TrainOptions
 
     torch.set_num_threads(1)
     options = {"hold": "off"} | ({"weights": args.weights} if args.weights else {})
@@ -58,31 +113,7 @@ def main(argv: list[str] | None = None) -> int:
             outputs += list(y.double().numpy())
             truths += list(truth.double().numpy())
             vads += list(vad.numpy().astype(bool))
-
-    def errors(directions: list[np.ndarray]) -> np.ndarray:
-        return np.concatenate([angular_errors_deg(torch.from_numpy(d), torch.from_numpy(t)).numpy()
-                               for d, t in zip(directions, truths)])
-
-    def rms(e: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
-
-    e = errors(outputs)
-    since = np.concatenate([frames_since_voice(v) for v in vads])
-    total = float(np.sum(e**2))
-    print(f"{args.tracker} on the {args.task} validation set ({len(vads)} trajectories, {e.size} frames): "
-          f"all {rms(e):.2f} deg, non-silent {rms(e[since == 0]):.2f} deg")
-    print("| frames since voice | frames | RMSAE (deg) | share of the squared error |")
-    print("|---|---|---|---|")
-    rows = [("0 (voice-active)", since == 0)]
-    rows += [(f"{lo}-{hi - 1}" if hi else f"{lo} and more", (since >= lo) & ((since < hi) if hi else True))
-             for lo, hi in BUCKETS]
-    rows.append(("before the first voice", since < 0))
-    for label, mask in rows:
-        print(f"| {label} | {int(mask.sum()):,} | {rms(e[mask]):.2f} | {np.sum(e[mask] ** 2) / total:.2f} |")
-    for hold in (int(h) for h in args.holds.split(",") if h.strip()):
-        held = [hold_in_silences(d, v, hold) for d, v in zip(outputs, vads)]
-        print(f"hold after {hold} silent frames: all {rms(errors(held)):.2f} deg")
-    return 0
+    return outputs, truths, vads
 
 
 if __name__ == "__main__":

@@ -87,3 +87,21 @@ def test_silence_errors_counts_frames_since_voice():
     spec.loader.exec_module(module)
     vad = np.array([0, 0, 1, 0, 0, 1, 1, 0], bool)
     assert module.frames_since_voice(vad).tolist() == [-1, -1, 0, 1, 2, 0, 0, 1]
+
+
+def test_silence_errors_splits_a_results_file_by_silence(tmp_path):
+    up, east = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]
+    # errors: 90 (before any voice), 0 (voiced), 90, 90 (1 and 2 frames after voice)
+    frames = {"truth": [up, up, up, up], "estimates": [east, up, east, east], "vad": [False, True, False, False]}
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps({"frames": [frames], "tracker": {"id": "t"}, "task": {"id": "x", "version": 1}}))
+    script = Path(__file__).resolve().parents[1] / "scripts" / "silence_errors.py"
+    out = subprocess.run([sys.executable, str(script), "--results", str(path), "--holds", "1"],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert "all 77.94 deg, non-silent 0.00 deg" in lines[0]
+    assert "| before the first voice | 1 | 90.00 | 0.33 |" in lines
+    assert "| 1-2 | 2 | 90.00 | 0.67 |" in lines
+    # held after one silent frame: frames 2 and 3 repeat frame 1's estimate (up, error 0)
+    assert lines[-1] == "hold after 1 silent frames: all 45.00 deg"
