@@ -2,8 +2,9 @@
 
 The builtin engine's per-image work is one fused loop in C when a C compiler is available
 (``cc``, ``gcc`` or ``clang``, or ``$CC``), and the torch path of :func:`rir.render_images`
-otherwise. Both compute the same model; they agree to float32 rounding (tested), and each is
-bitwise reproducible on its own. ``doabench`` records which one ran in the simulator's
+otherwise. Both approximate the same model (the kernel rounds arrivals to 1/128 sample, the
+torch path interpolates between 1/8-sample phases); they agree to about 1e-2 of the peak sample
+(tested), and each is bitwise reproducible on its own. ``doabench`` records which one ran in the simulator's
 provenance (:func:`kernel_name`).
 
 Why not a library: numba is not one of doabench's dependencies, and ``torch.compile`` (inductor)
@@ -33,7 +34,7 @@ import numpy as np
 SOURCE = "image_sources.c"
 KERNEL_VERSION = 4  # doabench_image_kernel_version() of the source
 FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-fno-math-errno", "-shared", "-fPIC"]
-_HALF, _OVER = 16, 128  # SINC_HALF and OVERSAMPLE as compiled into the C source
+_HALF, _OVER = 16, 128  # SINC_HALF and KERNEL_PHASES (rir.py) as compiled into the C source
 _TAPS = 32  # samples per image in the C source (2 * SINC_HALF)
 _BLOCK = 64  # DB_BLOCK
 
@@ -138,7 +139,7 @@ def tap_table(windowed_sinc, half: int, over: int) -> np.ndarray:
     """``(over, 2 half)`` float32: row ``ph`` holds ``windowed_sinc(n - (half - 1) - ph / over)``,
     the taps of an image arriving ``ph / over`` samples after an integer sample time."""
     if (half, over) != (_HALF, _OVER):
-        raise ValueError(f"the C kernel is built for SINC_HALF {_HALF} and OVERSAMPLE {_OVER}")
+        raise ValueError(f"the C kernel is built for SINC_HALF {_HALF} and {_OVER} phases")
     n = np.arange(_TAPS)[None, :]
     ph = np.arange(over)[:, None]
     return np.ascontiguousarray(windowed_sinc(n - (half - 1) - ph / over, half), dtype=np.float32)

@@ -5,9 +5,8 @@ Model (details and rationale in docs/simulation.md, "Room impulse responses"):
 * **Early part, ``[0, Tdiff)``**: the image-source method of Allen & Berkley (1979) for a
   shoebox with six reflection coefficients. Every image within reach contributes
   ``prod(beta) / (4 pi d)`` at delay ``d / c``, band-limited by a Hann-windowed sinc centred on
-  the arrival time rounded to 1/OVERSAMPLE = 1/128 sample; the window spans +-SINC_HALF = 16
-  samples (the width of pyroomacoustics' 33-tap fractional delay), so an image touches
-  2 * SINC_HALF = 32 samples. No high-pass filter.
+  the arrival time; the window spans +-SINC_HALF = 16 samples (the width of pyroomacoustics'
+  33-tap fractional delay), so an image touches 2 * SINC_HALF = 32 samples. No high-pass filter.
 * **Diffuse tail, ``[Tdiff, Tmax)``**: Gaussian noise with a power envelope
   ``A**2 * exp(-ln(10**6) t / T60)`` (60 dB per T60), **one per microphone, shared by every
   point of a batch (trajectory)** (:func:`shared_tail`). ``A**2`` is fitted per (point, mic) to
@@ -20,12 +19,16 @@ Model (details and rationale in docs/simulation.md, "Room impulse responses"):
   ``simulators.convolve_parts``). For one point (a static source) the result is the per-point
   model's; :func:`write_diffuse_tail_` keeps that model (independent per point) for comparisons.
 
-Speed: the sinc is not evaluated per image; its 128 phases are tabulated (16 kB), and an image
-adds its amplitude times the nearest phase's 32 taps. Rounding the arrival time to 1/128 sample
-is as accurate as the earlier linear interpolation between 8 phases (largest tap error 5.3e-3
-against 6.4e-3 of the peak) at half the work per image. The compiled kernel
-(:mod:`doabench.acoustics.native`) does this in one loop; the torch path (GPUs, no C compiler)
-scatters the same taps in cache-sized slices, single-threaded on CPU (see :func:`single_threaded`).
+Speed: the sinc is not evaluated per image. The compiled kernel (:mod:`doabench.acoustics.native`,
+CPU) tabulates its 128 phases (16 kB) and adds each image's amplitude times the nearest phase's
+32 taps: rounding the arrival to 1/128 sample errs by at most 5.3e-3 of the peak tap. The torch
+path (GPUs, no C compiler) accumulates the images with linear interpolation into an
+OVERSAMPLE = 8 times finer time grid, and one strided convolution whose kernel holds every
+windowed-sinc phase turns the fine grid into samples (2 scattered writes per image instead of
+32; linear interpolation between 1/8-sample phases errs by at most 6.4e-3 of the peak tap). So
+the two paths are two approximations of the same exact model, about 1e-2 of the peak apart
+(tested); each is bitwise reproducible. The torch path's per-image work runs in cache-sized
+slices, single-threaded on CPU (see :func:`single_threaded`).
 """
 from __future__ import annotations
 
@@ -35,20 +38,21 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from doabench.acoustics import native
 from doabench.acoustics.room import Room
 from doabench.geometry import SPEED_OF_SOUND
 
 SINC_HALF = 16  # windowed-sinc half width in samples (pyroomacoustics frac_delay_length = 33)
-OVERSAMPLE = 128  # arrival times rounded to 1/128 sample (the nearest tabulated sinc phase)
+KERNEL_PHASES = 128  # the C kernel: arrival times rounded to 1/128 sample (nearest tabulated phase)
+OVERSAMPLE = 8  # the torch path: a 1/8-sample grid, linear interpolation in between
+_BLOCK = 16  # outputs per strided-convolution step (speed only; results do not depend on it)
 _TAIL_FIT_MIN_SAMPLES = 32  # below this many usable ISM samples the tail level is theoretical
 _CHUNK_ELEMENTS = 4_000_000  # bounds the temporaries of one chunk of trajectory points
-# Elements (mics x images) per step of the torch path's per-image work: on CPU its (elements,
-# taps) temporaries stay in cache (the work is memory-bound; DRAM-sized temporaries were 2x
-# slower); on CUDA larger steps keep the device busy.
-_SLICE_ELEMENTS = 8192
-_SLICE_ELEMENTS_CUDA = 1 << 20
+# Elements (mics x images) per step of the per-image work: the temporaries stay in cache (the
+# work is memory-bound; DRAM-sized temporaries were 2x slower).
+_SLICE_ELEMENTS = 98304
 TAIL_MODEL = "shared: one diffuse tail per microphone for all trajectory points"  # provenance
 
 
@@ -117,13 +121,36 @@ def windowed_sinc(t: np.ndarray, half: int = SINC_HALF) -> np.ndarray:
     return np.where(np.abs(t) < half, np.sinc(t) * w, 0.0)
 
 
+def _interleaved_kernel(half: int, over: int, block: int) -> np.ndarray:
+    """Weights ``(block, 1, (block + 2 half + 1) over)`` of the strided convolution.
+
+    The input is the fine grid (``over`` columns per sample) after ``(half + 1) over`` columns of
+    left padding, so column ``t`` of a block's window holds impulses at time
+    ``t / over - half - 1`` relative to the block start; output ``s`` is sample ``s`` of the block.
+    """
+    s = np.arange(block)[:, None, None]
+    t = np.arange((block + 2 * half + 1) * over)[None, None, :]
+    return windowed_sinc(s + half + 1 - t / over, half)
+
+
+_KERNELS: dict[tuple, torch.Tensor] = {}
+
+
+def _kernel(device: torch.device) -> torch.Tensor:
+    key = (str(device), SINC_HALF, OVERSAMPLE, _BLOCK)
+    if key not in _KERNELS:
+        k = _interleaved_kernel(SINC_HALF, OVERSAMPLE, _BLOCK)
+        _KERNELS[key] = torch.as_tensor(k, dtype=torch.float32, device=device)
+    return _KERNELS[key]
+
+
 _TAP_TABLES: list[np.ndarray] = []
 
 
 def _tap_table() -> np.ndarray:
-    """The windowed-sinc phases ``(OVERSAMPLE, 2 SINC_HALF)`` (:func:`native.tap_table`), built once."""
+    """The C kernel's windowed-sinc phases ``(KERNEL_PHASES, 2 SINC_HALF)`` (:func:`native.tap_table`), built once."""
     if not _TAP_TABLES:
-        _TAP_TABLES.append(native.tap_table(windowed_sinc, SINC_HALF, OVERSAMPLE))
+        _TAP_TABLES.append(native.tap_table(windowed_sinc, SINC_HALF, KERNEL_PHASES))
     return _TAP_TABLES[0]
 
 
@@ -261,7 +288,7 @@ def render_images(
         out = torch.empty(P, M, n_out, dtype=torch.float32, device=device)
     if P == 0 or n_out == 0:
         return out
-    half, over, taps = SINC_HALF, OVERSAMPLE, 2 * SINC_HALF
+    half, over, block = SINC_HALF, OVERSAMPLE, _BLOCK
     to_samples = fs / SPEED_OF_SOUND
     f32 = dict(dtype=torch.float32, device=device)
 
@@ -277,12 +304,11 @@ def render_images(
                       np.ascontiguousarray(images.sign, dtype=np.float32),
                       np.ascontiguousarray(images.offset - centre.numpy(), dtype=np.float32),
                       np.ascontiguousarray(images.gain / (4.0 * math.pi), dtype=np.float32),
-                      reach * reach, to_samples * over, _tap_table(), out.numpy(), n_out)
+                      reach * reach, to_samples * KERNEL_PHASES, _tap_table(), out.numpy(), n_out)
         return out[..., :n_out]
     sign = torch.as_tensor(images.sign, **f32)
     offset = torch.as_tensor(images.offset - centre.cpu().numpy(), **f32)
     gain = torch.as_tensor(images.gain / (4.0 * math.pi), **f32)
-    table = torch.as_tensor(_tap_table(), **f32)  # (over, taps)
 
     # Keep (point, image) pairs whose image is within reach of the array's bounding sphere
     # (cheap (P, I) work that spares the (M, K) work below). Images up to 2 array radii beyond
@@ -297,42 +323,58 @@ def render_images(
     amp = gain.index_select(0, flat - p_idx * len(images))
     del rel, r2, flat
 
-    # Buffer row per (point, mic): column c holds sample c - (half - 1), so an image whose arrival
-    # rounds to sample floor(t) writes columns floor(t) ... floor(t) + taps - 1; spare columns
-    # take the images that are within reach of the array but not of this microphone.
+    # Fine-grid buffer per (point, mic) row: (half + 1) * over columns of left padding for the
+    # convolution, then the grid; n_blocks is rounded up to cover the spare columns.
     spare = int(math.ceil(2 * arr_radius * to_samples)) + 2
-    width = n_out + half + spare + taps
-    size = P * M * width
+    n_blocks = -(-(n_out + spare) // block)
+    width = (n_blocks * block + 2 * half + 1) * over
+    size = P * M * width + 1  # +1: the w1 write of the last column
     if workspace is not None and workspace and workspace[0].numel() >= size:
         buf = workspace[0][:size].zero_()
     else:
         buf = torch.zeros(size, **f32)
         if workspace is not None:
             workspace[:] = [buf]
-    row_start = p_idx * (M * width)  # (K,) (point, mic 0), int64
-    mic_start = torch.arange(M, device=device)[:, None] * width  # (M, 1)
+    index_dtype = torch.int32 if size < 2**31 else torch.int64
+    row_start = (p_idx * (M * width) + (half + 1) * over).to(index_dtype)  # (K,) (point, mic 0)
+    mic_start = (torch.arange(M, device=device)[:, None] * width).to(index_dtype)  # (M, 1)
     mic_sq = (mic * mic).sum(1, keepdim=True)
-    tap = torch.arange(taps, device=device)
+    index_buf = torch.empty(M * max(1, _SLICE_ELEMENTS // M), dtype=torch.int64, device=device)
 
-    n_slice = max(1, (_SLICE_ELEMENTS if device.type == "cpu" else _SLICE_ELEMENTS_CUDA) // M)
+    # Slices of images small enough that the (M, slice) temporaries stay in cache; the work is
+    # memory-bound, and DRAM-sized temporaries made it 2-3x slower.
+    n_slice = max(1, _SLICE_ELEMENTS // M)
     serial = single_threaded() if device.type == "cpu" else contextlib.nullcontext()
     with serial:  # slices are cache-sized: threads only add hand-off cost
         for k0 in range(0, pos.shape[1], n_slice):
             k1 = min(pos.shape[1], k0 + n_slice)
-            # distances (M, k) as |p|^2 - 2 p.m + |m|^2
+            # distances (M, k) as |p|^2 - 2 p.m + |m|^2 (M x k layout: consecutive writes stay
+            # in one (point, mic) row)
             dist = mic_sq + pos_sq[None, k0:k1]
             for a in range(3):
                 dist.addcmul_(mic[:, a, None], pos[None, a, k0:k1], value=-2.0)
             dist.clamp_(min=1e-12).sqrt_()
-            w = amp[k0:k1] / dist
-            q = dist.mul_(to_samples * over).add_(0.5).to(torch.int64)  # nearest phase (t >= 0)
-            sample = torch.div(q, over, rounding_mode="floor")
-            values = table[q - sample * over] * w[..., None]  # (M, k, taps)
-            first = (row_start[k0:k1] + mic_start + sample)[..., None] + tap  # (M, k, taps)
-            accumulate_(buf, first.view(-1), values.view(-1))
+            w0 = amp[k0:k1] / dist
+            t = dist.mul_(to_samples * over)  # arrival on the fine grid, >= 0
+            q = t.to(index_dtype)  # floor (t >= 0); float -> int32 is 10x cheaper than -> int64
+            frac = t.frac_()  # = t - q exactly (t >= 0), without converting q back to float
+            w1 = w0 * frac
+            w0.sub_(w1)
+            index = index_buf[: M * (k1 - k0)].view(M, k1 - k0)  # int64 straight from the adds
+            torch.add(q, row_start[k0:k1], out=index).add_(mic_start)
+            index = index.view(-1)
+            accumulate_(buf[:-1], index, w0.view(-1))
+            accumulate_(buf[1:], index, w1.view(-1))
 
-    rows = buf.view(P, M, width)
-    out[..., :n_out].copy_(rows[..., half - 1 : half - 1 + n_out])
+    conv = F.conv1d(buf[:-1].view(P * M, 1, width), _kernel(device), stride=block * over)
+    del buf
+    # conv is (rows, sample-in-block, block); copy it transposed straight into `out`
+    rows = out.view(P * M, out.shape[-1])
+    full = n_out // block
+    rows[:, : full * block].view(P * M, full, block).copy_(conv[..., :full].transpose(1, 2))
+    rest = n_out - full * block
+    if rest:
+        rows[:, full * block : n_out] = conv[:, :rest, full]
     return out[..., :n_out]
 
 
@@ -487,7 +529,7 @@ def _points_per_chunk(
     per_point = max(
         n_images,  # (P, I) pruning distances
         n_mics * heard,  # (M, K) per-image work
-        n_mics * (layout.n_early + 4 * SINC_HALF + 8),  # the torch path's row buffer
+        n_mics * OVERSAMPLE * (layout.n_early + 2 * SINC_HALF + 2 * _BLOCK + 8),  # the torch path's fine grid
         n_mics * (layout.n_taps if n_out is None else n_out),  # output
     )
     return max(1, int(_CHUNK_ELEMENTS // per_point))

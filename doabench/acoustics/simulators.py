@@ -354,8 +354,9 @@ class BuiltinSimulator(_TorchBackend):
             "doabench": __version__,
             "torch": torch.__version__,
             "device": str(self.device),
-            "sinc": f"hann-windowed over +-{engine.SINC_HALF} samples, nearest of {engine.OVERSAMPLE} phases "
-                    "per sample",
+            "sinc": f"hann-windowed over +-{engine.SINC_HALF} samples; arrival at the nearest 1/"
+                    f"{engine.KERNEL_PHASES} sample (image_kernel c) or linear between 1/{engine.OVERSAMPLE}-sample "
+                    "phases (image_kernel torch)",
             "hpf": "none",
             "tail": engine.TAIL_MODEL,
             "image_kernel": engine.image_kernel(self.device),
