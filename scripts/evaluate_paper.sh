@@ -22,12 +22,15 @@ for metric in rmsae_nonsilent rmsae_all; do
     fig=$([ "$metric" = rmsae_nonsilent ] && echo fig6-rmsae-nonsilent-vs-t60 || echo fig8-rmsae-all-vs-t60)
     "$DOABENCH" plot rmsae-vs-t60 results/sim-grid__*.json --metric "$metric" --out "docs/img/$fig"
 done
-# Fig. 7 needs per-frame estimates, which the sweep leaves out (--no-frames: 10 MB per 360-episode
-# file otherwise): the first 181 episodes again, with frames. Episode 180 opens cell T60 0.9 s,
-# SNR 5 dB (20 episodes per cell, cells in T60-major order).
+# Fig. 7 and the split of the error by silence need per-frame estimates, which the sweep leaves
+# out (--no-frames: 10 MB per 360-episode file otherwise): the grid again, with frames, into
+# runs/ (not committed). Episode 180 opens cell T60 0.9 s, SNR 5 dB (20 episodes per cell, cells
+# in T60-major order).
 for t in srp-kalman:32x64 cross3d:16x32; do
-    "$DOABENCH" run --tracker "$t" --task sim-grid --episodes 181 --librispeech "$LIBRI" --out runs/fig7 --quiet --overwrite
+    "$DOABENCH" run --tracker "$t" --task sim-grid --librispeech "$LIBRI" --out runs/fig7 --quiet --overwrite
 done
 "$DOABENCH" plot episode runs/fig7/sim-grid__srp-kalman_32x64.json runs/fig7/sim-grid__cross3d_16x32.json \
     --episode 180 --librispeech "$LIBRI" --out docs/img/fig7-episode-180
+.venv/bin/python scripts/silence_errors.py --results runs/fig7/sim-grid__cross3d_16x32.json
+.venv/bin/python scripts/pause_hold_bound.py runs/fig7/sim-grid__*.json
 .venv/bin/python scripts/cross3d_targets.py results
