@@ -185,3 +185,22 @@ def test_a_read_only_cache_folder_falls_back_to_a_temp_folder(monkeypatch, tmp_p
     monkeypatch.setattr(native.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
     assert native.library() is not None, native.unavailable_reason()
     assert any((tmp_path / "tmp").rglob("*.so")) and not locked.exists()
+
+
+def test_largest_tap_errors_of_the_two_approximations():
+    """docs/simulation.md quotes them: nearest of 128 phases (the kernel) 5.3e-3, linear between
+    8 phases (the torch path) 6.4e-3 of the peak tap, against the windowed sinc at the exact time."""
+    half = engine.SINC_HALF
+    frac = np.linspace(0.0, 1.0, 4001)[:-1]
+    n = np.arange(2 * half)[None, :] - (half - 1)
+    exact = engine.windowed_sinc(n - frac[:, None])
+    table = native.tap_table(engine.windowed_sinc, half, engine.KERNEL_PHASES).astype(np.float64)
+    q = np.floor(frac * engine.KERNEL_PHASES + 0.5).astype(int)  # q == 128: the next sample's phase 0
+    nearest = np.where((q < engine.KERNEL_PHASES)[:, None], table[np.minimum(q, engine.KERNEL_PHASES - 1)],
+                       engine.windowed_sinc(n - 1.0))
+    over = engine.OVERSAMPLE
+    lo = np.floor(frac * over)
+    a = (frac * over - lo)[:, None]
+    linear = (1 - a) * engine.windowed_sinc(n - lo[:, None] / over) + a * engine.windowed_sinc(n - (lo[:, None] + 1) / over)
+    assert np.abs(nearest - exact).max() == pytest.approx(5.3e-3, abs=0.1e-3)
+    assert np.abs(linear - exact).max() == pytest.approx(6.4e-3, abs=0.1e-3)

@@ -1,7 +1,8 @@
 /* doabench: the image-source part of room impulse responses, one fused pass per image.
  *
  * Built and loaded by doabench/acoustics/native.py (ctypes; no Python headers needed). It
- * computes what doabench.acoustics.rir.render_images computes with torch ops, in one loop:
+ * computes the early part of doabench.acoustics.rir.render_images on CPU, in one loop (the torch
+ * path approximates the same model with a 1/8-sample grid instead):
  * for every (point, image) pair within reach and every microphone, the distance, the amplitude
  * gain / d and the arrival time d fs / c, then the 32 taps of the Hann-windowed sinc (+-16
  * samples) centred on that time, read from a table of the nearest of DB_OVER = 128 phases per
@@ -21,7 +22,7 @@
 #include <string.h>
 
 #define DB_HALF 16  /* SINC_HALF: the window spans +-16 samples */
-#define DB_OVER 128 /* OVERSAMPLE: table phases per sample (nearest phase) */
+#define DB_OVER 128 /* KERNEL_PHASES (rir.py): table phases per sample (nearest phase) */
 #define DB_TAPS 32  /* samples one image touches: 2 * DB_HALF, two 16-float vectors */
 #define DB_BLOCK 64 /* images per block of the vectorised distance work */
 
@@ -69,8 +70,9 @@ int doabench_render_images(int64_t P, int64_t M, int64_t I, const float *restric
         int64_t K = 0; /* images of this point within reach */
         for (int64_t i = 0; i < I; i++) {
             /* branchless compaction: every image is written at K, which only moves on for the
-             * images within reach (a data-dependent branch here mispredicted about half the
-             * time: ~5.5 ns per image, 10 % of the kernel in long-T60 rooms) */
+             * images within reach (about a quarter of the images are out of reach, in no
+             * predictable order; this loop is about 10 % of the kernel in long-T60 rooms, and
+             * the branch-free form measured the same or a little faster: docs/performance.md) */
             const float *sg = sign + 3 * i, *of = offset + 3 * i;
             const float x = of[0] + sg[0] * sx, y = of[1] + sg[1] * sy, z = of[2] + sg[2] * sz;
             ix[K] = x;

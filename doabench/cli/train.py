@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="auto (default): bf16 autocast with float32 master weights where the CPU has native bf16 "
                         "(AVX-512 BF16/AMX) or on CUDA, else float32")
     p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=None,
-                   help="torch.compile the network (default: on for --preset paper and finetune; about 1-2 minutes of "
+                   help="torch.compile the network (default: on for the presets that simulate on the fly, paper and finetune; about 1-2 minutes of "
                         "compilation per batch shape, then a faster step)")
     p.add_argument("--device", default="cpu", help="device the network trains on: cpu (default) or cuda")
     p.add_argument("--out", required=True, help="run folder: checkpoints, log.csv, loss.png")
@@ -114,13 +114,14 @@ def main(args: argparse.Namespace) -> int:
     check_trainable(make_tracker(args.tracker, **options), args.tracker)  # fail fast, one line
     from doabench.training.trainer import TrainOptions, Trainer
 
-    opts = TrainOptions(tracker=args.tracker, out=Path(args.out), recipe=build_recipe(args), task=args.task,
+    recipe = build_recipe(args)
+    opts = TrainOptions(tracker=args.tracker, out=Path(args.out), recipe=recipe, task=args.task,
                         librispeech=args.librispeech, cache_root=Path(args.cache_root), simulator=args.backend,
                         resume=args.resume, threads=args.threads, progress=not args.quiet,
                         max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
                         dataset=Path(args.dataset) if args.dataset else None, epochs=args.epochs,
                         precision=args.precision, workers=args.workers, device=args.device,
-                        compile=args.preset in ("paper", "finetune") if args.compile is None else args.compile)
+                        compile=recipe.data == "simulate" if args.compile is None else args.compile)
     if args.build_cache:
         from doabench.training.distributed import is_distributed_launch
 

@@ -12,6 +12,7 @@ import contextlib
 import copy
 import csv
 import io
+import json
 import math
 import os
 import time
@@ -201,8 +202,6 @@ class Trainer:
         version = self.saved.get("task_version")
         config = self.out / "config.json"
         if version is None and config.exists():  # states written before checkpoints recorded it
-            import json
-
             version = json.loads(config.read_text()).get("task_version")
         if version is not None and int(version) != int(self.spec.version):
             raise ConfigError(f"{self.out} was trained on {self.spec.id} version {version} and the task is now "
