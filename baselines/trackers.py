@@ -64,16 +64,8 @@ def _parse_hold(value: str | int) -> int | None:
     return frames
 
 
-def hold_in_silences(directions: np.ndarray, vad: np.ndarray, hold: int) -> np.ndarray:
-    """``directions`` ``(frames, 3)`` with every frame that ends a run of ``>= hold`` voice-inactive
-    frames replaced by the last frame before it that did not (see :attr:`NeuralTracker.hold_frames`);
-    frames before the first voice-active one are left as they are. ``vad`` ``(frames,)`` bool."""
-    n = len(vad)
-    index = np.arange(n)
-    last_voiced = np.maximum.accumulate(np.where(vad, index, -1))
-    informed = (last_voiced >= 0) & (index - last_voiced < hold)
-    source = np.maximum.accumulate(np.where(informed | (last_voiced < 0), index, -1))
-    return directions[source]
+# The hold rule itself is doabench's (public API), shared with the trainer's validation.
+hold_in_silences = doabench.hold_in_silences
 
 
 def _device(text: str) -> torch.device:

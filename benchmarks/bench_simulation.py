@@ -76,11 +76,20 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--pra-scenes", type=int, default=20, help="scenes also run with pyroomacoustics (0: none)")
     ap.add_argument("--device", default=None, help="builtin backend device (cpu, cuda)")
-    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="threads of each backend: torch's and pyroomacoustics' num_threads (default: "
+                         "each library's own; the issue's protocol is one process, one thread)")
     ap.add_argument("--seed", type=int, default=1000)
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
+    pra_threads = None
+    if args.pra_scenes > 0:
+        import pyroomacoustics as pra  # only when it runs: the builtin-only benchmark needs no pyroomacoustics
+
+        if args.threads:  # its fractional-delay builder is multithreaded; same budget as torch
+            pra.constants.set("num_threads", args.threads)
+        pra_threads = pra.constants.get("num_threads")
 
     timer = StageTimer()
     dist = SceneDistribution(p_static=0.0)
@@ -130,7 +139,8 @@ def main() -> None:
 
     print()
     print(f"machine: {_cpu_name()}, {os.cpu_count()} CPUs, torch {torch.__version__}, "
-          f"{torch.get_num_threads()} torch threads, builtin device {backends['builtin'].device}")
+          f"{torch.get_num_threads()} torch threads, builtin device {backends['builtin'].device}"
+          + (f", pyroomacoustics num_threads {pra_threads}" if pra_threads is not None else ""))
     print(f"1-min load average before/after: {load_before[0]:.1f} / {load_after[0]:.1f}")
     print()
     print("| backend | scenes | mean s / trajectory | median s | min s | max s | mean CPU s |")

@@ -8,6 +8,7 @@ Public API::
     env = gymnasium.make("doabench/sim-demo-v2", features=("srp",), resolution=(16, 32))
     doabench.run(tracker="srp-max", task="sim-demo")                   # scored results dict
     doabench.srp_maps(audio, "nao")    # SRP-PHAT maps + grid angles + argmax directions in one call
+    doabench.hold_in_silences(directions, vad, hold)   # the learned trackers' hold rule in silences
 
 What users implement or receive: ``Tracker`` (subclass it) and the ``ResetContext`` its
 ``reset(array, **context)`` gets; ``TaskSpec`` (a task's parsed TOML); ``EpisodeSource`` (the
@@ -29,7 +30,7 @@ from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import DoabenchError
 from doabench.framing import FrameSpec
-from doabench.trackers import Tracker, available_trackers, make_tracker, register_tracker
+from doabench.trackers import Tracker, available_trackers, hold_in_silences, make_tracker, register_tracker
 from doabench.trackers.base import ResetContext
 
 if TYPE_CHECKING:
@@ -101,6 +102,6 @@ available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
     "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ResetContext",
-    "TaskSpec", "Tracker", "TrainableTracker", "available_tasks", "available_trackers", "get_array", "get_task_spec", "load_array_file",
-    "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "srp_maps",
+    "TaskSpec", "Tracker", "TrainableTracker", "available_tasks", "available_trackers", "get_array", "get_task_spec",
+    "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "srp_maps",
 ]

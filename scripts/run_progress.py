@@ -11,26 +11,37 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import re
 import sys
 from pathlib import Path
 
 HEADER = ("| epoch | SNR (dB) | batch | train loss | val RMSAE all (deg) | val RMSAE non-silent (deg) "
-          "| trajectories seen | compute (h) | trajectories/s |\n|---|---|---|---|---|---|---|---|---|\n")
+          "| val RMSAE all, held in silences (deg) | trajectories seen | compute (h) | trajectories/s |\n"
+          "|---|---|---|---|---|---|---|---|---|---|\n")
+
+
+def best_by(log: Path) -> str:
+    """The column the run selects its best epoch by (config.json beside the log; runs started
+    before the held score existed select by all frames)."""
+    config = log.parent / "config.json"
+    return json.loads(config.read_text()).get("best_by", "val_rmsae_all") if config.exists() else "val_rmsae_all"
 
 
 def progress_table(log: Path, every: int) -> str:
     rows = list(csv.DictReader(log.open()))
     if not rows:
         raise SystemExit(f"{log}: no epochs yet")
-    best = min(rows, key=lambda r: float(r["val_rmsae_all"]))
+    key = best_by(log)
+    best = min((r for r in rows if r.get(key)), key=lambda r: float(r[key]))
     lines = []
     for i, r in enumerate(rows):
         if int(r["epoch"]) % every and i != len(rows) - 1 and r is not best:
             continue
         mark = " (best)" if r is best else ""
+        held = f"{float(r['val_rmsae_held']):.2f}" if r.get("val_rmsae_held") else "-"
         lines.append(f"| {r['epoch']}{mark} | {r['phase_snr']} | {r['batch_size']} | {float(r['train_loss']):.4f} "
-                     f"| {float(r['val_rmsae_all']):.2f} | {float(r['val_rmsae_nonsilent']):.2f} "
+                     f"| {float(r['val_rmsae_all']):.2f} | {float(r['val_rmsae_nonsilent']):.2f} | {held} "
                      f"| {int(r['trajectories_seen']):,} | {float(r['compute_s']) / 3600:.2f} "
                      f"| {float(r['trajectories_per_s']):.2f} |\n")
     return HEADER + "".join(lines)

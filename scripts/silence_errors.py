@@ -7,8 +7,8 @@ With ``--tracker``: scores a trainable tracker's network on the fixed validation
 network runs raw (``hold=off``). With ``--results FILE``: the per-frame estimates of a results file
 written without ``--no-frames`` (any tracker, any task). Prints the RMSAE and share of the squared
 error per number of frames since the last voice-active frame (and before the first one), then the
-all-frames RMSAE when the estimate is held after ``N`` silent frames (``hold_in_silences`` of the
-baselines, the rule the learned trackers' ``hold`` option applies) for each ``--holds`` value.
+all-frames RMSAE when the estimate is held after ``N`` silent frames (``doabench.hold_in_silences``,
+the rule the learned trackers' ``hold`` option applies) for each ``--holds`` value.
 
     python scripts/silence_errors.py --tracker cross3d:16x32 --librispeech ../shared/data/LibriSpeech
     python scripts/silence_errors.py --results runs/fig7/sim-grid__cross3d_16x32.json
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--holds", default="6,11,16,21,26,31", help="comma-separated frame counts")
     args = p.parse_args(argv)
 
-    from doabench_baselines.trackers import hold_in_silences
+    from doabench import hold_in_silences
 
     if args.results is not None:
         name, outputs, truths, vads = _from_results(args.results)

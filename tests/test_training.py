@@ -65,14 +65,18 @@ def energy_features(audio: torch.Tensor, vad: torch.Tensor) -> dict[str, torch.T
     return {"energy": torch.log(frames.pow(2).mean(-1) + 1e-8).transpose(1, 2)}
 
 
-def make_cache(folder: Path, n: int, seed: int, mics: int = M, length: int = L) -> Path:
+def make_cache(folder: Path, n: int, seed: int, mics: int = M, length: int = L, silent_from: int | None = None) -> Path:
+    """``silent_from``: voice-inactive from that sample on (a long silence at the end)."""
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True)
     (folder / "manifest.json").write_text(json.dumps({"format": 1, "synthetic": True}))
     for i in range(n):
+        vad = rng.random(length) < 0.9
+        if silent_from is not None:
+            vad[silent_from:] = False
         write_item(folder / f"{i:05d}.npz", {
             "audio": (rng.standard_normal((mics, length)) * rng.uniform(0.2, 1.0, (mics, 1))).astype(np.float16),
-            "scale": np.float64(1.0), "signal_power": np.float64(0.3), "vad": rng.random(length) < 0.9,
+            "scale": np.float64(1.0), "signal_power": np.float64(0.3), "vad": vad,
             "trajectory": rng.uniform(1, 3, (3, 3)), "array_position": np.array([2.0, 2.0, 1.0]),
             "snr_db": np.float64(rng.uniform(5, 30)), "t60": np.float64(0.5), "seed": np.int64(i)})
     return folder
@@ -423,3 +427,49 @@ def test_finetune_preset_is_the_papers_second_phase_at_a_gentler_start():
     assert ft.data == "simulate" and ft.trajectories_per_epoch == paper.trajectories_per_epoch
     assert [(p.snr, p.batch_size) for p in ft.phases] == [(paper.phases[1].snr, paper.phases[1].batch_size)] * 2
     assert [p.lr for p in ft.phases] == [3e-5, paper.phases[1].lr]
+
+
+def test_validation_scores_the_hold_rule_and_new_runs_select_by_it(tmp_path, caches):
+    from doabench.training import checkpoint as ckpt
+
+    caches = (caches[0], make_cache(tmp_path / "val-silent", 2, 3, silent_from=L // 3))
+    trainer = make_trainer(tmp_path / "run", caches, max_epochs=1)
+    trainer.hold_frames = 2  # the tiny tracker never holds; a learned causal one does
+    val = trainer.prepare_validation()
+    metrics = trainer.validate(val)
+    # the same numbers by hand: raw outputs, then the outputs held with doabench.hold_in_silences
+    raw, held = [], []
+    with torch.no_grad():
+        for x, truth, vad in val:
+            y = trainer.forward(x, truth)
+            for b in range(len(y)):
+                d = y[b].numpy()
+                for out, dirs in ((raw, d), (held, doabench.hold_in_silences(d, vad[b].numpy(), 2))):
+                    cos = (dirs * truth[b].numpy()).sum(-1) / np.linalg.norm(dirs, axis=-1) / np.linalg.norm(truth[b].numpy(), axis=-1)
+                    out.extend(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+    assert metrics["val_rmsae_all"] == pytest.approx(np.sqrt(np.mean(np.square(raw))), rel=1e-4)
+    assert metrics["val_rmsae_held"] == pytest.approx(np.sqrt(np.mean(np.square(held))), rel=1e-4)
+    assert all(v[:, -3:].sum() == 0 for _, _, v in val)  # a long final silence, so the rule had work
+    assert metrics["val_rmsae_held"] != pytest.approx(metrics["val_rmsae_all"], rel=1e-3)
+    trainer.run()
+    state = ckpt.load_checkpoint(tmp_path / "run" / ckpt.LATEST)
+    assert state["best_by"] == "val_rmsae_held"
+    assert state["best"] == state["history"][0]["val_rmsae_held"]
+    assert "val_rmsae_held" in (tmp_path / "run" / "log.csv").read_text().splitlines()[0]
+    # a state written before the held score existed keeps selecting by all frames when resumed
+    del state["best_by"]
+    ckpt.save_checkpoint(tmp_path / "run" / ckpt.LATEST, state)
+    assert make_trainer(tmp_path / "run", caches, resume=True).best_by == "val_rmsae_all"
+
+
+def test_held_frame_index_is_batched_and_matches_the_tracker_rule():
+    from doabench.trackers import held_frame_index
+
+    vad = np.array([[0, 1, 0, 0, 0, 1, 0, 0], [1, 0, 0, 0, 0, 0, 0, 0]], bool)
+    index = held_frame_index(vad, 2)
+    # frame 0 precedes any voice (kept); a frame is informed while voice lies within its last two
+    # frames, and from the second silent frame on the last informed frame repeats
+    assert index.tolist() == [[0, 1, 2, 2, 2, 5, 6, 6], [0, 1, 1, 1, 1, 1, 1, 1]]
+    assert all(np.array_equal(held_frame_index(v, 2), i) for v, i in zip(vad, index))
+    with pytest.raises(ValueError):
+        held_frame_index(vad, 0)

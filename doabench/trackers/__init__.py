@@ -5,6 +5,8 @@
 """
 from doabench.geometry import parse_resolution
 from doabench.trackers.base import Tracker
+from doabench.trackers.hold import held_frame_index, hold_in_silences
 from doabench.trackers.registry import available_trackers, make_tracker, register_tracker, resolve_tracker
 
-__all__ = ["Tracker", "available_trackers", "make_tracker", "parse_resolution", "register_tracker", "resolve_tracker"]
+__all__ = ["Tracker", "available_trackers", "held_frame_index", "hold_in_silences", "make_tracker", "parse_resolution",
+           "register_tracker", "resolve_tracker"]

@@ -44,7 +44,9 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
             "cached_trajectories": row.get("n_cache") or None,
             "loss": "MSE between the output and the true unit vector of every frame",
             "optimizer": "Adam",
-            "validation": {k: row.get(k) for k in ("val_loss", "val_rmsae_all", "val_rmsae_nonsilent")},
+            "validation": {k: row.get(k) for k in ("val_loss", "val_rmsae_all", "val_rmsae_nonsilent", "val_rmsae_held")
+                           if row.get(k) is not None},
+            "best_epoch_by": (state.get("best_by") or "val_rmsae_all") if which == "best" else None,
             "validation_set": "fixed held-out-speaker trajectories (10% of the speakers), scene SNR",
         },
     }

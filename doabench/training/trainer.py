@@ -27,6 +27,7 @@ from torch.utils.data import DataLoader
 from doabench.errors import ConfigError, NotFoundError
 from doabench.geometry import great_circle_error
 from doabench.results.files import atomic_path, write_json, write_text
+from doabench.trackers.hold import held_frame_index
 from doabench.training import checkpoint as ckpt
 from doabench.training.cache import TrajectoryCache
 from doabench.training.data import (CachedItems, DatasetItems, NetworkInputs, SimulatedItems, ValidationItems,
@@ -38,7 +39,7 @@ from doabench.training.recipes import Recipe
 
 FeatureFn = Callable[[torch.Tensor, torch.Tensor], Mapping[str, torch.Tensor]]
 CSV_COLUMNS = ("epoch", "phase_snr", "batch_size", "lr", "train_loss", "val_loss", "val_rmsae_all",
-               "val_rmsae_nonsilent", "n_cache", "trajectories_seen", "epoch_s", "compute_s",
+               "val_rmsae_nonsilent", "val_rmsae_held", "n_cache", "trajectories_seen", "epoch_s", "compute_s",
                "trajectories_per_s")
 PRECISIONS = ("auto", "bf16", "fp32")
 
@@ -185,6 +186,12 @@ class Trainer:
         elif self.device.type == "cpu" and self.workers > 0:
             torch.set_num_threads(1)  # one thread per process: the workers use the other cores
         self.base_seed = int(self.spec.base_seed) + int(recipe.seed)
+        # Validation also scores the outputs under the tracker's hold rule (doabench.hold_in_silences;
+        # None: the tracker never holds), the way `doabench run` will use the weights, and a new run
+        # keeps the epoch that is best by that score. A run resumed from a state written before
+        # that keeps its criterion (all frames, raw outputs), so its epochs stay comparable.
+        self.hold_frames: int | None = getattr(self.tracker, "hold_frames", None)
+        self.best_by = "val_rmsae_held" if self.saved is None else str(self.saved.get("best_by") or "val_rmsae_all")
 
     # -- setup ------------------------------------------------------------------------------
     def _load_saved(self) -> dict[str, Any] | None:
@@ -331,17 +338,22 @@ class Trainer:
     @torch.no_grad()
     def validate(self, val: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]) -> dict[str, float]:
         self.network.eval()
-        losses, errors, active = [], [], []
+        losses, errors, held, active = [], [], [], []
         for x, truth, vad in val:
             x, truth = self._to_device(x), truth.to(self.device)
-            y = self.forward(x, truth).cpu()
+            y = self.forward(x, truth).cpu()  # (B, T, 3)
             truth = truth.cpu()
             losses.append(torch.nn.functional.mse_loss(y, truth, reduction="none").mean(-1).flatten())
             errors.append(angular_errors_deg(y, truth).flatten())
+            if self.hold_frames is not None:
+                index = torch.from_numpy(held_frame_index(vad.numpy(), self.hold_frames))  # (B, T)
+                y = torch.gather(y, 1, index[..., None].expand_as(y))
+                held.append(angular_errors_deg(y, truth).flatten())
             active.append(vad.flatten())
         e, a = torch.cat(errors), torch.cat(active)
         rms = lambda v: float(torch.sqrt(torch.mean(v**2))) if v.numel() else math.nan  # noqa: E731
-        return {"val_loss": float(torch.cat(losses).mean()), "val_rmsae_all": rms(e), "val_rmsae_nonsilent": rms(e[a])}
+        return {"val_loss": float(torch.cat(losses).mean()), "val_rmsae_all": rms(e), "val_rmsae_nonsilent": rms(e[a]),
+                "val_rmsae_held": rms(torch.cat(held)) if held else rms(e)}
 
     # -- the loop ---------------------------------------------------------------------------------
     def run(self) -> list[dict[str, Any]]:
@@ -402,7 +414,7 @@ class Trainer:
                    **metrics, "n_cache": n_cache, "trajectories_seen": seen, "epoch_s": round(epoch_s, 1),
                    "compute_s": round(compute_s, 1), "trajectories_per_s": round(len(items) / epoch_s, 3)}
             history.append(row)
-            score = metrics["val_rmsae_all"]
+            score = metrics[self.best_by]
             if score < best:  # the latest weights are the best: stored once, as "model"
                 best, best_epoch, best_weights = score, epoch + 1, None
             elif best_weights is None:  # keep the previous best before the latest moves on
@@ -414,14 +426,14 @@ class Trainer:
                      "initial_weights": self.initial_weights, "history": history, "compute_s": compute_s, "trajectories_seen": seen,
                      "threads": torch.get_num_threads(), "precision": self.precision,
                      "device": str(self.device), "workers": self.workers, "compiled": bool(self.options.compile),
-                     "best": best}
+                     "best": best, "best_by": self.best_by}
             if self.is_writer:  # data-parallel hook: rank 0 alone writes the run folder
                 ckpt.save_checkpoint(self.out / ckpt.LATEST, state)
                 write_log(self.out / "log.csv", history)
                 plot_history(self.out / "loss.png", history, self.options.tracker)
             self.log(f"epoch {epoch + 1}: train loss {row['train_loss']:.4f}, val loss {metrics['val_loss']:.4f}, "
-                     f"val RMSAE {metrics['val_rmsae_all']:.2f} deg (non-silent {metrics['val_rmsae_nonsilent']:.2f}),"
-                     f" {epoch_s:.0f} s")
+                     f"val RMSAE {metrics['val_rmsae_all']:.2f} deg (non-silent {metrics['val_rmsae_nonsilent']:.2f}, "
+                     f"held {metrics['val_rmsae_held']:.2f}), {epoch_s:.0f} s")
             ran += 1
         return history
 
@@ -435,7 +447,8 @@ class Trainer:
                 "initial_weights": None if self.initial_weights is None else {
                     k: self.initial_weights.get(k) for k in ("weights", "sha256")},
                 "threads": torch.get_num_threads(), "torch": torch.__version__, "precision": self.precision,
-                "compile": bool(self.options.compile), "workers": self.workers, "device": str(self.device)}
+                "compile": bool(self.options.compile), "workers": self.workers, "device": str(self.device),
+                "hold_frames": self.hold_frames, "best_by": self.best_by}
 
 
 def _available(folder: Path) -> list[int]:
@@ -488,6 +501,9 @@ def plot_history(path: Path, history: list[dict[str, Any]], title: str) -> None:
     ax1.legend()
     ax2.plot(epochs, [h["val_rmsae_all"] for h in history], label="all frames")
     ax2.plot(epochs, [h["val_rmsae_nonsilent"] for h in history], label="non-silent frames")
+    held = [(h["epoch"], h["val_rmsae_held"]) for h in history if h.get("val_rmsae_held") is not None]
+    if held:  # epochs validated since the hold rule was scored
+        ax2.plot(*zip(*held), label="all frames, held in silences")
     ax2.set_xlabel("epoch")
     ax2.set_ylabel("validation RMSAE (deg)")
     ax2.legend()
