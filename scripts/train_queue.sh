@@ -9,37 +9,59 @@
 # says so. Stop it at any time (Ctrl-C, kill) and run it again to continue where it stopped;
 # commit training-runs/ (and baselines/weights/) before a session ends.
 #
-#   nice -n 10 scripts/train_queue.sh                       # LibriSpeech from $DOABENCH_LIBRISPEECH
+# Runs whose state is too large to commit mid-run (the 1D CNNs: 70-110 MB compact, against the
+# 150 MB that run states may add to the repository in all) must finish within the session that
+# starts them. With QUEUE_DEADLINE (Unix time the session's training must stop by) such an entry
+# is started only when its estimated hours fit before the deadline; otherwise it is deferred to a
+# later session and the queue goes on with the entries that may span sessions. Without
+# QUEUE_DEADLINE every entry runs in order.
+#
+#   QUEUE_DEADLINE=$(( $(date +%s) + 165 * 60 )) nice -n 10 scripts/train_queue.sh   # a 3-hour session
 #   DOABENCH_LIBRISPEECH=/data/LibriSpeech nice -n 10 scripts/train_queue.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 LIBRI="${DOABENCH_LIBRISPEECH:-../shared/data/LibriSpeech}"
 DOABENCH="${DOABENCH:-.venv/bin/doabench}"
-# tracker, preset, run name, weights file name; the paper preset trains from scratch
+DEADLINE="${QUEUE_DEADLINE:-}"
+if [ -n "$DEADLINE" ] && ! [[ "$DEADLINE" =~ ^[0-9]+$ ]]; then
+    echo "QUEUE_DEADLINE must be a Unix time in seconds (e.g. \$(( \$(date +%s) + 165 * 60 ))), got '$DEADLINE'" >&2
+    exit 2
+fi
+# tracker, preset, run name, weights file name, whole-session hours: 0 for a run whose state is
+# small enough to commit at every session's end, else the hours it needs from start to export
+# (measured: docs/training.md, "The training queue"); the paper preset trains from scratch
 # (weights=random), finetune starts from the tracker's shipped weights
 QUEUE=(
-    "cross3d:16x32 paper cross3d-16x32 cross3d-16x32"
-    "cross3d:8x16 paper cross3d-8x16 cross3d-8x16"
-    "cross3d:4x8 paper cross3d-4x8 cross3d-4x8"
-    "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d"
-    "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128"
-    "spec-cnn2d paper spec-cnn2d spec-cnn2d"
-    "seldnet paper seldnet seldnet"
+    "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 0"
+    "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 0"
+    "cross3d:4x8 paper cross3d-4x8 cross3d-4x8 0"
+    "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d 3.0"
+    "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128 3.0"
+    "spec-cnn2d paper spec-cnn2d spec-cnn2d 0"
+    "seldnet paper seldnet seldnet 0"
 )
 
+deferred=()
 for entry in "${QUEUE[@]}"; do
-    read -r model preset name weights_name <<< "$entry"
+    read -r model preset name weights_name whole_hours <<< "$entry"
     out="training-runs/$name"
     weights="baselines/weights/$weights_name.safetensors"
     if [ -f "$out/exported.txt" ]; then
         continue
     fi
-    opts=()
-    [ "$preset" = paper ] && opts=(--tracker-opt weights=random)
     resume=()
     if [ -f "$out/checkpoint.safetensors" ]; then
         resume=(--resume)
+    elif [ -n "$DEADLINE" ] && [ "$whole_hours" != 0 ]; then
+        need=$(awk -v h="$whole_hours" 'BEGIN { printf "%d", h * 3600 }')
+        if [ $(( $(date +%s) + need )) -gt "$DEADLINE" ]; then
+            echo "== $(date -u +%FT%TZ) $model deferred: it needs ${whole_hours} h in one session, $(( (DEADLINE - $(date +%s)) / 60 )) min left"
+            deferred+=("$model")
+            continue
+        fi
     fi
+    opts=()
+    [ "$preset" = paper ] && opts=(--tracker-opt weights=random)
     echo "== $(date -u +%FT%TZ) $model ($preset) -> $out ${resume[*]}"
     # returns once every epoch of the recipe is done (immediately for a finished run)
     "$DOABENCH" train --tracker "$model" "${opts[@]}" --preset "$preset" --librispeech "$LIBRI" \
@@ -50,4 +72,8 @@ for entry in "${QUEUE[@]}"; do
     printf 'exported %s (%s preset) to %s (sha256 %s) on %s\n' "$model" "$preset" "$weights" "$sha" \
         "$(date -u +%FT%TZ)" > "$out/exported.txt"
 done
+if [ ${#deferred[@]} -gt 0 ]; then
+    echo "== deferred to a session that starts with them: ${deferred[*]}"
+    exit 0
+fi
 echo "== the queue is done: run scripts/evaluate_paper.sh (docs/results.md)"
