@@ -27,23 +27,30 @@ if [ -n "$DEADLINE" ] && ! [[ "$DEADLINE" =~ ^[0-9]+$ ]]; then
     echo "QUEUE_DEADLINE must be a Unix time in seconds (e.g. \$(( \$(date +%s) + 165 * 60 ))), got '$DEADLINE'" >&2
     exit 2
 fi
-# tracker, preset, run name, weights file name, whole-session hours: 0 for a run whose state is
-# small enough to commit at every session's end, else the hours it needs from start to export
-# (measured: docs/training.md, "The training queue"); the paper preset trains from scratch
-# (weights=random), finetune starts from the tracker's shipped weights
+# tracker, preset, run name, weights file name, whole-session hours, then any extra `doabench
+# train` options. Whole-session hours: 0 for a run whose state is small enough to commit at every
+# session's end, else the hours it needs from start to export: the 1D CNNs cost about 0.30-0.33
+# CPU-s per trajectory (simulation and features in the workers, a 0.02-0.03 s step), like
+# cross3d:8x16, whose run did 5.8 trajectories/s on the 2-core AMD EPYC of session 6, so 46,800
+# trajectories take about 2.3 h; on the slower Intel machine of session 5 (3.5/s) they would not
+# fit a session. spec-cnn2d and seldnet train on T60 0-0.3 s (the trainer's default for them) for
+# 18 epochs (10,530 trajectories, the issue's >= 10,000; second phase from epoch 9): their steps
+# cost 2.0 and 0.39 CPU-s per trajectory, so the paper's 80 epochs would take about 26 and 5 h.
+# The paper preset trains from scratch (weights=random), finetune starts from shipped weights.
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 0"
     "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 0"
     "cross3d:4x8 paper cross3d-4x8 cross3d-4x8 0"
-    "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d 3.0"
-    "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128 3.0"
-    "spec-cnn2d paper spec-cnn2d spec-cnn2d 0"
-    "seldnet paper seldnet seldnet 0"
+    "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d 2.4"
+    "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128 2.4"
+    "spec-cnn2d paper spec-cnn2d spec-cnn2d 0 --epochs 18 --switch-epoch 9"
+    "seldnet paper seldnet seldnet 0 --epochs 18 --switch-epoch 9"
 )
 
 deferred=()
 for entry in "${QUEUE[@]}"; do
-    read -r model preset name weights_name whole_hours <<< "$entry"
+    read -r model preset name weights_name whole_hours extra_text <<< "$entry"
+    read -r -a extra <<< "${extra_text:-}"
     out="training-runs/$name"
     weights="baselines/weights/$weights_name.safetensors"
     if [ -f "$out/exported.txt" ]; then
@@ -52,6 +59,7 @@ for entry in "${QUEUE[@]}"; do
     resume=()
     if [ -f "$out/checkpoint.safetensors" ]; then
         resume=(--resume)
+        extra=()  # the run keeps the recipe it started with
     elif [ -n "$DEADLINE" ] && [ "$whole_hours" != 0 ]; then
         need=$(awk -v h="$whole_hours" 'BEGIN { printf "%d", h * 3600 }')
         if [ $(( $(date +%s) + need )) -gt "$DEADLINE" ]; then
@@ -65,7 +73,7 @@ for entry in "${QUEUE[@]}"; do
     echo "== $(date -u +%FT%TZ) $model ($preset) -> $out ${resume[*]}"
     # returns once every epoch of the recipe is done (immediately for a finished run)
     "$DOABENCH" train --tracker "$model" "${opts[@]}" --preset "$preset" --librispeech "$LIBRI" \
-        --out "$out" --quiet "${resume[@]}"
+        --out "$out" --quiet ${extra[@]+"${extra[@]}"} ${resume[@]+"${resume[@]}"}
     "$DOABENCH" train --tracker "$model" --tracker-opt weights=random --out "$out" --export "$weights"
     sha=$(sha256sum "$weights" | cut -d' ' -f1)
     rm -f "$out/checkpoint.safetensors"
