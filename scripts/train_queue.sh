@@ -29,10 +29,10 @@ if [ -n "$DEADLINE" ] && ! [[ "$DEADLINE" =~ ^[0-9]+$ ]]; then
 fi
 # tracker, preset, run name, weights file name, whole-session hours, then any extra `doabench
 # train` options. Whole-session hours: 0 for a run whose state is small enough to commit at every
-# session's end, else the hours it needs from start to export: the 1D CNNs cost about 0.30-0.33
+# session's end, else the hours it needs from start to export: the 1D CNNs cost about 0.30-0.35
 # CPU-s per trajectory (simulation and features in the workers, a 0.02-0.03 s step), like
 # cross3d:8x16, whose run did 5.8 trajectories/s on the 2-core AMD EPYC of session 6, so 46,800
-# trajectories take about 2.3 h; on the slower Intel machine of session 5 (3.5/s) they would not
+# trajectories take 2.3-2.6 h; on the slower Intel machine of session 5 (3.5/s) they would not
 # fit a session. spec-cnn2d and seldnet train on T60 0-0.3 s (the trainer's default for them) for
 # 18 epochs (10,530 trajectories, the issue's >= 10,000; second phase from epoch 9): their steps
 # cost 2.0 and 0.39 CPU-s per trajectory, so the paper's 80 epochs would take about 26 and 5 h.
@@ -41,7 +41,7 @@ QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 0"
     "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 0"
     "cross3d:4x8 paper cross3d-4x8 cross3d-4x8 0"
-    "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d 2.4"
+    "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d 2.6"
     "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128 2.4"
     "spec-cnn2d paper spec-cnn2d spec-cnn2d 0 --epochs 18 --switch-epoch 9"
     "seldnet paper seldnet seldnet 0 --epochs 18 --switch-epoch 9"
