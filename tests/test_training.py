@@ -471,5 +471,5 @@ def test_held_frame_index_is_batched_and_matches_the_tracker_rule():
     # frames, and from the second silent frame on the last informed frame repeats
     assert index.tolist() == [[0, 1, 2, 2, 2, 5, 6, 6], [0, 1, 1, 1, 1, 1, 1, 1]]
     assert all(np.array_equal(held_frame_index(v, 2), i) for v, i in zip(vad, index))
-    with pytest.raises(ValueError):
+    with pytest.raises(doabench.DoabenchError, match="hold must be >= 1"):
         held_frame_index(vad, 0)

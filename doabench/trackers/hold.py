@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from doabench.errors import ConfigError
+
 
 def held_frame_index(vad: np.ndarray, hold: int) -> np.ndarray:
     """Index ``(..., frames)`` int64 of the frame whose estimate each frame reports under the rule.
@@ -21,7 +23,7 @@ def held_frame_index(vad: np.ndarray, hold: int) -> np.ndarray:
     while a voice-active frame lies within its last ``hold`` frames (or none has come yet), else
     the last frame before it that did."""
     if int(hold) < 1:
-        raise ValueError(f"hold must be >= 1 frame, got {hold!r}")
+        raise ConfigError(f"hold must be >= 1 frame, got {hold!r}")
     vad = np.asarray(vad, dtype=bool)
     index = np.broadcast_to(np.arange(vad.shape[-1], dtype=np.int64), vad.shape)
     last_voiced = np.maximum.accumulate(np.where(vad, index, -1), axis=-1)
