@@ -34,8 +34,10 @@ fi
 # cross3d:8x16, whose run did 5.8 trajectories/s on the 2-core AMD EPYC of session 6, so 46,800
 # trajectories take 2.3-2.6 h; on the slower Intel machine of session 5 (3.5/s) they would not
 # fit a session. spec-cnn2d and seldnet train on T60 0-0.3 s (the trainer's default for them) for
-# 18 epochs (10,530 trajectories, the issue's >= 10,000; second phase from epoch 9): their steps
-# cost 2.0 and 0.39 CPU-s per trajectory, so the paper's 80 epochs would take about 26 and 5 h.
+# 18 epochs (10,530 trajectories, the issue's >= 10,000; second phase from epoch 9): their
+# compiled steps cost 1.1 and 0.43 CPU-s per trajectory on one thread (session 6), about 3.2 and
+# 1.3 h for 18 epochs, against 14 and 5.6 h for the paper's 80; their states (1.9 M and 0.1 M
+# parameters) may be committed at every session's end.
 # The paper preset trains from scratch (weights=random), finetune starts from shipped weights.
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 0"
