@@ -200,6 +200,9 @@ def test_export_writes_weights_with_training_metadata(tmp_path, caches):
         meta = json.loads(f.metadata()["doabench"])
     assert meta["training"]["epochs_completed"] == 1 and meta["training"]["trajectories_seen"] == 4
     assert meta["doabench_version"] == doabench.__version__
+    # which score chose the epoch, and the held score beside the raw ones
+    assert meta["training"]["best_epoch_by"] == "val_rmsae_held"
+    assert set(meta["training"]["validation"]) == {"val_loss", "val_rmsae_all", "val_rmsae_nonsilent", "val_rmsae_held"}
 
 
 class MaxTracker(TinyTracker):
