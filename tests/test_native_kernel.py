@@ -204,3 +204,32 @@ def test_largest_tap_errors_of_the_two_approximations():
     linear = (1 - a) * engine.windowed_sinc(n - lo[:, None] / over) + a * engine.windowed_sinc(n - (lo[:, None] + 1) / over)
     assert np.abs(nearest - exact).max() == pytest.approx(5.3e-3, abs=0.1e-3)
     assert np.abs(linear - exact).max() == pytest.approx(6.4e-3, abs=0.1e-3)
+
+
+
+def test_accelerator_work_sizes_give_the_same_simulation(monkeypatch):
+    """Off the CPU the torch path and the FFT convolutions work in far larger pieces (fewer kernel
+    launches). The pieces change only the order of float32 additions, so a simulation with the
+    accelerator's sizes, run here on the CPU, must equal the CPU-sized one to rounding."""
+    from doabench.acoustics import simulators
+
+    assert engine.work_elements(torch.device("cpu"), 1, 2) == 1
+    assert engine.work_elements(torch.device("cuda"), 1, 2) == 2  # a device object needs no GPU
+    room, src, mics = _scene(t60=0.6, n_points=120)
+    x = np.random.default_rng(1).standard_normal(48000)
+    # with the CPU's sizes the early convolution runs in several chunks of points, with the
+    # accelerator's in one
+    layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mics), FS)
+    row = len(mics) * simulators.trajectory_fft_size(len(x), len(src), layout.n_early)
+    assert simulators._OLA_CHUNK_ELEMENTS // row < len(src) <= simulators._OLA_CHUNK_ELEMENTS_CUDA // row
+    sim = get_simulator("builtin")
+    saved = dict(native._state)
+    try:
+        native._state.update(lib=None, why="test")  # the torch path, which CUDA runs
+        cpu_sized = sim.simulate(room, src, mics, x, FS, seed=5)
+        monkeypatch.setattr(engine, "work_elements", lambda device, cpu, accelerator: accelerator)
+        accelerator_sized = sim.simulate(room, src, mics, x, FS, seed=5)
+    finally:
+        native._state.clear()
+        native._state.update(saved)
+    assert np.linalg.norm(accelerator_sized - cpu_sized) / np.linalg.norm(cpu_sized) < 1e-5

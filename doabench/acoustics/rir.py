@@ -53,6 +53,11 @@ _CHUNK_ELEMENTS = 4_000_000  # bounds the temporaries of one chunk of trajectory
 # Elements (mics x images) per step of the per-image work: the temporaries stay in cache (the
 # work is memory-bound; DRAM-sized temporaries were 2x slower).
 _SLICE_ELEMENTS = 98304
+# On CUDA, cache-sized pieces leave the device launch-bound: a 20 s trajectory at T60 1.2 s has
+# about 50 M (point, image, microphone) elements, 500 slices of about 15 kernels of a few
+# microseconds each. There the sizes bound GPU memory instead (a few hundred MB of temporaries).
+_CHUNK_ELEMENTS_CUDA = 1 << 26
+_SLICE_ELEMENTS_CUDA = 1 << 23
 TAIL_MODEL = "shared: one diffuse tail per microphone for all trajectory points"  # provenance
 
 
@@ -62,6 +67,12 @@ TAIL_MODEL = "shared: one diffuse tail per microphone for all trajectory points"
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
     return torch.device("cpu") if device is None else torch.device(device)
+
+
+def work_elements(device: torch.device, cpu: int, accelerator: int) -> int:
+    """Elements per piece of chunked work on ``device``: ``cpu`` (cache-sized) on the CPU,
+    ``accelerator`` (larger, to amortise kernel launches) elsewhere."""
+    return cpu if torch.device(device).type == "cpu" else accelerator
 
 
 def make_generator(seed: int | torch.Generator | None, device: torch.device) -> torch.Generator:
@@ -339,11 +350,12 @@ def render_images(
     row_start = (p_idx * (M * width) + (half + 1) * over).to(index_dtype)  # (K,) (point, mic 0)
     mic_start = (torch.arange(M, device=device)[:, None] * width).to(index_dtype)  # (M, 1)
     mic_sq = (mic * mic).sum(1, keepdim=True)
-    index_buf = torch.empty(M * max(1, _SLICE_ELEMENTS // M), dtype=torch.int64, device=device)
+    index_buf = torch.empty(M * max(1, work_elements(device, _SLICE_ELEMENTS, _SLICE_ELEMENTS_CUDA) // M),
+                            dtype=torch.int64, device=device)
 
     # Slices of images small enough that the (M, slice) temporaries stay in cache; the work is
     # memory-bound, and DRAM-sized temporaries made it 2-3x slower.
-    n_slice = max(1, _SLICE_ELEMENTS // M)
+    n_slice = max(1, work_elements(device, _SLICE_ELEMENTS, _SLICE_ELEMENTS_CUDA) // M)
     serial = single_threaded() if device.type == "cpu" else contextlib.nullcontext()
     with serial:  # slices are cache-sized: threads only add hand-off cost
         for k0 in range(0, pos.shape[1], n_slice):
@@ -520,10 +532,11 @@ class RirParts:
 
 
 def _points_per_chunk(
-    room: Room | None, n_mics: int, n_images: int, layout: RirLayout, fs: int, n_out: int | None = None
+    room: Room | None, n_mics: int, n_images: int, layout: RirLayout, fs: int, n_out: int | None = None,
+    device: torch.device = torch.device("cpu"),
 ) -> int:
     """Points per chunk so that one chunk's largest temporaries stay near _CHUNK_ELEMENTS
-    (``n_out``: samples per output row, default ``n_taps``)."""
+    (_CHUNK_ELEMENTS_CUDA off the CPU; ``n_out``: samples per output row, default ``n_taps``)."""
     reach = (layout.n_early + SINC_HALF) / fs * SPEED_OF_SOUND
     heard = n_images if room is None else min(n_images, 4.2 * reach**3 / room.volume + 1)
     per_point = max(
@@ -532,7 +545,7 @@ def _points_per_chunk(
         n_mics * OVERSAMPLE * (layout.n_early + 2 * SINC_HALF + 2 * _BLOCK + 8),  # the torch path's fine grid
         n_mics * (layout.n_taps if n_out is None else n_out),  # output
     )
-    return max(1, int(_CHUNK_ELEMENTS // per_point))
+    return max(1, int(work_elements(device, _CHUNK_ELEMENTS, _CHUNK_ELEMENTS_CUDA) // per_point))
 
 
 def plan(room: Room | None, sources: torch.Tensor, mics: torch.Tensor, fs: int) -> tuple[RirLayout, torch.Tensor]:
@@ -567,7 +580,7 @@ def image_source_parts(
     early = torch.empty(S, M, width, dtype=torch.float32, device=sources.device)
     fit = room.t60 > 0 and layout.n_taps > layout.n_diff
     levels = torch.empty(S, M, dtype=torch.float64, device=sources.device) if fit else None
-    step = _points_per_chunk(room, M, len(images), layout, fs, width)
+    step = _points_per_chunk(room, M, len(images), layout, fs, width, sources.device)
     scratch: list = []
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
@@ -600,7 +613,7 @@ def direct_rirs(sources: torch.Tensor, mics: torch.Tensor, fs: int) -> torch.Ten
     images = direct_images()
     S, M = sources.shape[0], mics.shape[0]
     out = torch.empty(S, M, layout.n_taps, dtype=torch.float32, device=sources.device)
-    step = _points_per_chunk(None, M, 1, layout, fs)
+    step = _points_per_chunk(None, M, 1, layout, fs, device=sources.device)
     scratch: list = []
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)

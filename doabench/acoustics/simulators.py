@@ -33,6 +33,7 @@ _MIN_SOURCE_MIC_DISTANCE = 1e-3  # metres; 1 / (4 pi r) blows up at the micropho
 # 2 MB, so each chunk's transform, product and overlap-add stay in the L2 cache (8M-element
 # chunks were about a third slower for the early part; docs/performance.md, "early conv").
 _OLA_CHUNK_ELEMENTS = 500_000
+_OLA_CHUNK_ELEMENTS_CUDA = 1 << 26  # on CUDA: fewer, larger transforms (engine.work_elements)
 
 
 @runtime_checkable
@@ -187,7 +188,7 @@ def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor, n_taps: int | 
     )  # (S, frame): segment i at offset shift[i]
     n_hops = -(-nfft // hop)  # output hops one frame touches
     out = torch.zeros(M, S + n_hops, hop, dtype=torch.float32, device=device)
-    step = max(1, _OLA_CHUNK_ELEMENTS // (M * nfft))
+    step = max(1, engine.work_elements(device, _OLA_CHUNK_ELEMENTS, _OLA_CHUNK_ELEMENTS_CUDA) // (M * nfft))
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
         h = rirs[p0:p1] if width == nfft else rirs[p0:p1, :, :N]
@@ -235,7 +236,7 @@ def add_tail_convolution_(out: torch.Tensor, signal: torch.Tensor, tail: torch.T
     spec_h = _rfft(tail.to(torch.float32), nfft)  # (M, nfft // 2 + 1)
     n_hops = -(-nfft // block)  # blocks one block's output touches
     acc = torch.zeros(M, n_blocks + n_hops, block, dtype=torch.float32, device=device)
-    step = max(1, _OLA_CHUNK_ELEMENTS // (n_blocks * nfft))
+    step = max(1, engine.work_elements(device, _OLA_CHUNK_ELEMENTS, _OLA_CHUNK_ELEMENTS_CUDA) // (n_blocks * nfft))
     for m0 in range(0, M, step):
         m1 = min(M, m0 + step)
         y = _irfft(spec_x[None] * spec_h[m0:m1, None], nfft)  # (mics, blocks, nfft)
