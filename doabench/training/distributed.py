@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import gc
 import json
 import os
 from dataclasses import dataclass
@@ -176,6 +177,7 @@ def run_distributed(options, log: Callable[[str], None] = print, timeout_s: floa
         options = dataclasses.replace(options, progress=False)
         log = lambda message: None  # noqa: E731 - rank 0 speaks for the run
     dist.init_process_group(backend, rank=rank, world_size=world, timeout=_dt.timedelta(seconds=timeout_s))
+    trainer = state = None
     try:
         trainer = Trainer(options, log=log, **trainer_kwargs)
         state = setup(trainer, rank, world, local_rank, backend)
@@ -194,9 +196,19 @@ def run_distributed(options, log: Callable[[str], None] = print, timeout_s: floa
             log(f"data-parallel training: {world} processes ({backend}), {trainer.workers} data workers each")
         history = trainer.run()
         dist.barrier()  # rank 0's last checkpoint is written before any rank leaves
-        del state
         return history if rank == 0 else []
     finally:
+        # Free DDP (its reducer and communication hook hold this process group) while the group
+        # is alive. The step closure of setup() and the trainer form a reference cycle, which the
+        # cyclic garbage collector would free at any later time, after the group is destroyed
+        # (or in a later run's group); under load that aborted a rank with "terminate called
+        # without an active exception" (tests/test_scaleout.py, a stop-and-resume in one process).
+        if trainer is not None:
+            trainer.__dict__.pop("train_step", None)
+            trainer.train_forward = trainer.network
+            trainer.dist = None
+        trainer = state = None
+        gc.collect()
         dist.destroy_process_group()
 
 
