@@ -64,10 +64,6 @@ def _parse_hold(value: str | int) -> int | None:
     return frames
 
 
-# The hold rule itself is doabench's (public API), shared with the trainer's validation.
-hold_in_silences = doabench.hold_in_silences
-
-
 def _device(text: str) -> torch.device:
     import torch
 
@@ -343,7 +339,7 @@ class NeuralTracker(doabench.Tracker):
         self._last = _INITIAL_DIRECTION.copy()
         directions = np.stack([self._direction(v) for v in y[0].to("cpu", torch.float64).numpy()])
         hold = self.hold_frames
-        return directions if hold is None else hold_in_silences(directions, np.asarray(episode["vad"], bool), hold)
+        return directions if hold is None else doabench.hold_in_silences(directions, np.asarray(episode["vad"], bool), hold)
 
     def _direction(self, y: np.ndarray) -> np.ndarray:
         """Normalise the network output; keep the previous direction if it is (near) zero. A NaN or

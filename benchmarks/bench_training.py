@@ -10,6 +10,8 @@ defaults `doabench train` uses (workers, precision, compile), timed over its sec
 
     .venv/bin/python benchmarks/bench_training.py --librispeech ../shared/data/LibriSpeech \\
         --resolutions 16x32 8x16 --items 8 --e2e 16x32 --e2e-items 60
+    .venv/bin/python benchmarks/bench_training.py --items 10 \\
+        --trackers cross3d:8x16 cross3d:4x8 gcc-cnn1d max-cnn1d:64x128 spec-cnn2d seldnet   # any learned tracker
 """
 from __future__ import annotations
 
@@ -81,6 +83,29 @@ def step_cost(resolution: str, precision: str, compiled: bool, batch: int, repea
     return (time.process_time() - t0) / repeats / batch
 
 
+def tracker_costs(tracker: str, librispeech: str, n_items: int, compiled: bool = True) -> dict[str, float]:
+    """CPU seconds per trajectory of any learned tracker: the item (scene, simulation, features and
+    network input, as a data worker makes it) and the trainer's own Adam step on a batch of those
+    items (bf16 where the CPU has it, compiled as `doabench train`'s paper preset does), one thread.
+    Run a warm-up tracker first: the first one in a process also pays the speech index and FFT plans."""
+    from doabench.training.data import collate
+    from doabench.training.recipes import paper_recipe
+
+    opts = TrainOptions(tracker=tracker, out=Path(tempfile.mkdtemp()), recipe=paper_recipe(), librispeech=librispeech,
+                        tracker_options={"weights": "random"}, workers=0, compile=compiled, threads=1)
+    trainer = Trainer(opts, log=lambda m: None)
+    items, _ = trainer._epoch_items(20, (5.0, 30.0))  # second-phase items (SNR 5-30 dB, batch 10)
+    t0 = time.process_time()
+    batch = collate([items[k] for k in range(n_items)])
+    item_s = (time.process_time() - t0) / n_items
+    for _ in range(2):  # warm-up (and compilation)
+        trainer.train_step(batch)
+    t0 = time.process_time()
+    for _ in range(2):
+        trainer.train_step(batch)
+    return {"item": item_s, "step": (time.process_time() - t0) / 2 / n_items}
+
+
 def end_to_end(tracker: str, librispeech: str, n_items: int) -> dict[str, float]:
     """Trajectories/s over the second epoch of a short run with `doabench train`'s defaults."""
     from doabench.training.recipes import paper_recipe
@@ -103,10 +128,22 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=10)
     ap.add_argument("--e2e", nargs="*", default=["16x32"], help="resolutions to run end to end (none: skip)")
     ap.add_argument("--e2e-items", type=int, default=60, help="trajectories per epoch of the end-to-end run")
+    ap.add_argument("--trackers", nargs="*", default=[],
+                    help="learned trackers whose item and compiled-step costs to time with the trainer itself "
+                         "(e.g. cross3d:4x8 gcc-cnn1d max-cnn1d:64x128 spec-cnn2d seldnet); then only these")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     torch.set_num_threads(1)
     print(f"CPU: {cpu_name()}, {os.cpu_count()} cores, torch {torch.__version__}, load before {os.getloadavg()}")
+    if args.trackers:
+        print("| tracker | item CPU s (scene, simulation, features) | compiled step CPU s per trajectory (batch %d) |"
+              % args.items)
+        print("|---|---|---|")
+        for tracker in args.trackers:
+            c = tracker_costs(tracker, args.librispeech, args.items)
+            print(f"| {tracker} | {c['item']:.3f} | {c['step']:.3f} |", flush=True)
+        print(f"load after {os.getloadavg()}")
+        return
     costs = per_item_costs(f"cross3d:{args.resolutions[0]}", args.librispeech, args.items)
     print(f"per item (CPU s, 1 thread): simulation {costs['simulation']:.3f}, features "
           f"({args.resolutions[0]}) {costs['features']:.3f}")

@@ -29,15 +29,14 @@ if [ -n "$DEADLINE" ] && ! [[ "$DEADLINE" =~ ^[0-9]+$ ]]; then
 fi
 # tracker, preset, run name, weights file name, whole-session hours, then any extra `doabench
 # train` options. Whole-session hours: 0 for a run whose state is small enough to commit at every
-# session's end, else the hours it needs from start to export: the 1D CNNs cost about 0.30-0.35
-# CPU-s per trajectory (simulation and features in the workers, a 0.02-0.03 s step), like
-# cross3d:8x16, whose run did 5.8 trajectories/s on the 2-core AMD EPYC of session 6, so 46,800
-# trajectories take 2.3-2.6 h; on the slower Intel machine of session 5 (3.5/s) they would not
-# fit a session. spec-cnn2d and seldnet train on T60 0-0.3 s (the trainer's default for them) for
-# 18 epochs (10,530 trajectories, the issue's >= 10,000; second phase from epoch 9): their
-# compiled steps cost 1.1 and 0.43 CPU-s per trajectory on one thread (session 6), about 3.2 and
-# 1.3 h for 18 epochs, against 14 and 5.6 h for the paper's 80; their states (1.9 M and 0.1 M
-# parameters) may be committed at every session's end.
+# session's end, else the hours it needs from start to export. Costs per trajectory (item,
+# step) in docs/training.md ("The training queue and the run-state budget", from
+# benchmarks/bench_training.py --trackers): the 1D CNNs cost about what cross3d:8x16 does, whose
+# run did 5.8 trajectories/s on session 6's AMD EPYC (about 2.2 h for 46,800; the budget keeps a
+# margin). spec-cnn2d and seldnet are step-bound (0.90 and 0.26 CPU-s) and train on T60 0-0.3 s
+# (the trainer's default for them) for 18 epochs, 10,530 trajectories (the issue's >= 10,000;
+# second phase from epoch 9); their states (1.9 M and 0.1 M parameters) may be committed at every
+# session's end.
 # The paper preset trains from scratch (weights=random), finetune starts from shipped weights.
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 0"

@@ -191,10 +191,10 @@ def test_training_protocol(text, tmp_path):
 def test_hold_in_silences_repeats_the_last_informed_frame():
     d = np.arange(10, dtype=float)[:, None] * np.ones((1, 3))
     vad = np.array([0, 1, 0, 0, 0, 0, 1, 0, 0, 0], bool)
-    out = T.hold_in_silences(d, vad, 2)
+    out = doabench.hold_in_silences(d, vad, 2)
     # frame 0: no voice yet (as is); 2: one silent frame (as is); 3-5 hold frame 2; 6 voiced; 7 as is; 8-9 hold 7
     assert out[:, 0].tolist() == [0, 1, 2, 2, 2, 2, 6, 7, 7, 7]
-    assert np.array_equal(T.hold_in_silences(d, np.zeros(10, bool), 2), d)
+    assert np.array_equal(doabench.hold_in_silences(d, np.zeros(10, bool), 2), d)
 
 
 @pytest.mark.parametrize("text", ["cross3d:4x8", "max-cnn1d"])
