@@ -27,9 +27,13 @@ if [ -n "$DEADLINE" ] && ! [[ "$DEADLINE" =~ ^[0-9]+$ ]]; then
     echo "QUEUE_DEADLINE must be a Unix time in seconds (e.g. \$(( \$(date +%s) + 165 * 60 ))), got '$DEADLINE'" >&2
     exit 2
 fi
-# tracker, preset, run name, weights file name, whole-session hours, then any extra `doabench
-# train` options. Whole-session hours: 0 for a run whose state is small enough to commit at every
-# session's end, else the hours it needs from start to export. Costs per trajectory (item,
+# tracker, preset, run name, weights file name, whole-session hours, torch threads of the training
+# process, then any extra `doabench train` recipe options. Whole-session hours: 0 for a run whose
+# state is small enough to commit at every session's end, else the hours it needs from start to
+# export. Threads (kept when a run resumes, unlike the recipe options): 1 where the data workers
+# are the bottleneck (they use the other core); 2 for spec-cnn2d, whose model step takes ~5x its
+# item (0.90 vs 0.19 CPU s) so its one worker idles most of the time: 2 threads made that step
+# 1.42x faster in wall time with a training run beside it (docs/training.md). Costs per trajectory (item,
 # step) in docs/training.md ("The training queue and the run-state budget", from
 # benchmarks/bench_training.py --trackers): the 1D CNNs cost about what cross3d:8x16 does, whose
 # run did 5.8 trajectories/s on session 6's AMD EPYC (about 2.2 h for 46,800; the budget keeps a
@@ -39,18 +43,25 @@ fi
 # session's end.
 # The paper preset trains from scratch (weights=random), finetune starts from shipped weights.
 QUEUE=(
-    "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 0"
-    "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 0"
-    "cross3d:4x8 paper cross3d-4x8 cross3d-4x8 0"
-    "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d 2.6"
-    "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128 2.4"
-    "spec-cnn2d paper spec-cnn2d spec-cnn2d 0 --epochs 18 --switch-epoch 9"
-    "seldnet paper seldnet seldnet 0 --epochs 18 --switch-epoch 9"
+    "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 0 1"
+    "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 0 1"
+    "cross3d:4x8 paper cross3d-4x8 cross3d-4x8 0 1"
+    "gcc-cnn1d paper gcc-cnn1d gcc-cnn1d 2.6 1"
+    "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128 2.4 1"
+    "spec-cnn2d paper spec-cnn2d spec-cnn2d 0 2 --epochs 18 --switch-epoch 9"
+    "seldnet paper seldnet seldnet 0 1 --epochs 18 --switch-epoch 9"
 )
+
+# Transparent huge pages for glibc's large allocations (glibc >= 2.35; ignored elsewhere): an item's
+# simulation allocates ~40 MB of short-lived buffers, and their page faults cost 8 % of its CPU
+# time on session 7's AMD EPYC (0.225-0.234 vs 0.241-0.255 s per gcc-cnn1d item, 460 vs 6-12 k
+# faults; docs/training.md). Set before the training processes start: glibc reads it only then,
+# and the data workers are forked from the training process.
+export GLIBC_TUNABLES="${GLIBC_TUNABLES:+$GLIBC_TUNABLES:}glibc.malloc.hugetlb=1"
 
 deferred=()
 for entry in "${QUEUE[@]}"; do
-    read -r model preset name weights_name whole_hours extra_text <<< "$entry"
+    read -r model preset name weights_name whole_hours threads extra_text <<< "$entry"
     read -r -a extra <<< "${extra_text:-}"
     out="training-runs/$name"
     weights="baselines/weights/$weights_name.safetensors"
@@ -74,7 +85,7 @@ for entry in "${QUEUE[@]}"; do
     echo "== $(date -u +%FT%TZ) $model ($preset) -> $out ${resume[*]}"
     # returns once every epoch of the recipe is done (immediately for a finished run)
     "$DOABENCH" train --tracker "$model" "${opts[@]}" --preset "$preset" --librispeech "$LIBRI" \
-        --out "$out" --quiet ${extra[@]+"${extra[@]}"} ${resume[@]+"${resume[@]}"}
+        --out "$out" --quiet --threads "$threads" ${extra[@]+"${extra[@]}"} ${resume[@]+"${resume[@]}"}
     "$DOABENCH" train --tracker "$model" --tracker-opt weights=random --out "$out" --export "$weights"
     sha=$(sha256sum "$weights" | cut -d' ' -f1)
     rm -f "$out/checkpoint.safetensors"

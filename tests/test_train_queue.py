@@ -62,6 +62,8 @@ def test_queue_skips_exported_runs_resumes_and_exports_in_order(tree):
     assert "--resume" in trains[0] and all("--resume" not in c for c in trains[1:])
     # the spectrogram models train 18 epochs (10,530 trajectories, the issue's >= 10,000), the rest the paper's 80
     assert all(("--epochs 18 --switch-epoch 9" in c) == (c.split()[2] in ("spec-cnn2d", "seldnet")) for c in trains)
+    # spec-cnn2d's step dwarfs its item: its training process gets both cores' threads
+    assert all(f"--threads {2 if c.split()[2] == 'spec-cnn2d' else 1}" in c for c in trains)
     exports = [c.split("--export ")[1] for c in calls if "--export" in c]
     assert exports == ["baselines/weights/cross3d-8x16.safetensors", "baselines/weights/cross3d-4x8.safetensors",
                        "baselines/weights/gcc-cnn1d.safetensors", "baselines/weights/max-cnn1d-64x128.safetensors",
@@ -112,3 +114,11 @@ def test_a_resumed_run_keeps_its_recipe(tree):
     (tree / "training-runs" / "spec-cnn2d" / "checkpoint.safetensors").write_text("state\n")
     trains = [c for c in run_queue(tree) if "--export" not in c]
     assert trains[0].split()[2] == "spec-cnn2d" and "--resume" in trains[0] and "--epochs" not in trains[0]
+    assert "--threads 2" in trains[0]  # threads are not recipe: a resumed run keeps them too
+
+
+def test_the_queue_asks_glibc_for_huge_pages(tree):
+    fake = tree / "fake-doabench"
+    fake.write_text(FAKE.replace('echo "$*" >> "$CALLS"', 'echo "$GLIBC_TUNABLES" >> "$CALLS"'))
+    calls = run_queue(tree, GLIBC_TUNABLES="glibc.malloc.arena_max=2")
+    assert calls and all(c == "glibc.malloc.arena_max=2:glibc.malloc.hugetlb=1" for c in calls)
