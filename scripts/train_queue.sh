@@ -52,13 +52,6 @@ QUEUE=(
     "seldnet paper seldnet seldnet 0 1 --epochs 18 --switch-epoch 9"
 )
 
-# Transparent huge pages for glibc's large allocations (glibc >= 2.35; ignored elsewhere): an item's
-# simulation allocates ~40 MB of short-lived buffers, and their page faults cost 8 % of its CPU
-# time on session 7's AMD EPYC (0.225-0.234 vs 0.241-0.255 s per gcc-cnn1d item, 460 vs 6-12 k
-# faults; docs/training.md). Set before the training processes start: glibc reads it only then,
-# and the data workers are forked from the training process.
-export GLIBC_TUNABLES="${GLIBC_TUNABLES:+$GLIBC_TUNABLES:}glibc.malloc.hugetlb=1"
-
 deferred=()
 for entry in "${QUEUE[@]}"; do
     read -r model preset name weights_name whole_hours threads extra_text <<< "$entry"

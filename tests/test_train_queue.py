@@ -116,9 +116,3 @@ def test_a_resumed_run_keeps_its_recipe(tree):
     assert trains[0].split()[2] == "spec-cnn2d" and "--resume" in trains[0] and "--epochs" not in trains[0]
     assert "--threads 2" in trains[0]  # threads are not recipe: a resumed run keeps them too
 
-
-def test_the_queue_asks_glibc_for_huge_pages(tree):
-    fake = tree / "fake-doabench"
-    fake.write_text(FAKE.replace('echo "$*" >> "$CALLS"', 'echo "$GLIBC_TUNABLES" >> "$CALLS"'))
-    calls = run_queue(tree, GLIBC_TUNABLES="glibc.malloc.arena_max=2")
-    assert calls and all(c == "glibc.malloc.arena_max=2:glibc.malloc.hugetlb=1" for c in calls)
