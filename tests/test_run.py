@@ -189,6 +189,24 @@ def test_bad_run_inputs_are_one_line_errors_checked_first(tmp_path, monkeypatch,
     assert not out.exists()  # no results, journal or folder left behind
 
 
+def test_run_and_sweep_use_one_torch_thread_unless_told(tmp_path, monkeypatch, capsys):
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        for command in (["run", "--tracker", "srp-max:4x8", "--task", "sim-demo"],
+                        ["sweep", "--trackers", "srp-max:4x8", "--tasks", "sim-demo"]):
+            torch.set_num_threads(2)
+            assert main(command + ["--threads", "0", "--out", str(tmp_path / "out")]) == 2
+            assert "--threads must be at least 1" in _one_line_error(capsys) and not (tmp_path / "out").exists()
+        torch.set_num_threads(2)
+        assert main(["run", "--tracker", "srp-max:4x8", "--task", "sim-demo", "--episodes", "1", "--quiet",
+                     "--out", str(tmp_path / "out")]) == 0
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_a_grid_too_fine_is_refused_before_allocating():
     from doabench.errors import ConfigError
     from doabench.geometry import parse_resolution

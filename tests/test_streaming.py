@@ -99,6 +99,21 @@ def test_stream_step_does_not_modify_the_given_state():
     assert all(s is None for s in state) and all(s is not None for s in new)
 
 
+def test_a_step_runs_on_one_thread_and_gives_the_callers_threads_back(monkeypatch):
+    seen = []
+    model = max_cnn1d()
+    original = model.stream_step
+    monkeypatch.setattr(model, "stream_step", lambda x, s: (seen.append(torch.get_num_threads()), original(x, s))[1])
+    runner = StreamingRunner(model)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        runner.step(torch.randn(1, 2))
+        assert seen == [1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_offline_model_has_no_streaming_mode():
     with pytest.raises(TypeError):
         StreamingRunner(Seldnet())

@@ -26,6 +26,27 @@ def add_corpus_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu)")
 
 
+def add_threads_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch CPU threads of this process (default 1: with the other cores busy, two threads made a "
+                        "Cross3D run 4-12x slower; on an idle 2-core machine they gained nothing)")
+
+
+def use_threads(args: argparse.Namespace) -> None:
+    """Set torch's CPU thread count from ``--threads`` (validated: a one-line error below 1).
+
+    One by default: an evaluation is many small ops per frame and per episode, and an OpenMP
+    region waits for its slowest thread, so a descheduled thread stalls it (docs/performance.md,
+    "Threads of doabench run and sweep"). Parallelism comes from processes (`sweep --engine ray`)."""
+    from doabench.errors import ConfigError
+
+    if args.threads < 1:
+        raise ConfigError(f"--threads must be at least 1, got {args.threads}")
+    import torch
+
+    torch.set_num_threads(args.threads)
+
+
 def corpus_kwargs(args: argparse.Namespace) -> dict:
     out = {"backend": args.backend}
     if args.librispeech:

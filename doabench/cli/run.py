@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from doabench.cli.common import add_corpus_options, add_tracker_options, corpus_kwargs
+from doabench.cli.common import add_corpus_options, add_threads_option, add_tracker_options, corpus_kwargs, use_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(other task version, weights or options); a rerun of the same configuration always replaces")
     p.add_argument("--no-frames", action="store_true", help="do not store per-frame estimates in the JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_threads_option(p)
     add_corpus_options(p)
     p.set_defaults(func=main)
 
@@ -35,6 +36,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.runner import check_trained, run_lock
 
     check_output_folder(args.out)  # before the work, not after it
+    use_threads(args)
     options = parse_options(args.tracker_opt)
     tracker = make_tracker(args.tracker, **options)
     check_trained(tracker)  # before any file or folder is made

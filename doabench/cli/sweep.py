@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from doabench.cli.common import add_corpus_options, corpus_kwargs
+from doabench.cli.common import add_corpus_options, add_threads_option, corpus_kwargs, use_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,6 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace results files of another configuration (another task version, other "
                         "weights) instead of refusing those runs")
+    add_threads_option(p)  # of the local engine's runs; a Ray task gets its one CPU's thread from Ray
     add_corpus_options(p)
     p.set_defaults(func=main)
 
@@ -48,6 +49,7 @@ def main(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     check_output_folder(args.out)
+    use_threads(args)
     env_options = corpus_kwargs(args)
     if args.device:
         env_options["device"] = args.device

@@ -143,7 +143,10 @@ def plot_rmsae_vs_t60(runs: Sequence[dict[str, Any]], out: str | Path, snrs: Seq
     for ax, snr in zip(axes[0], snrs):
         for i, run in enumerate(ordered):
             t60, values, ci = grid_curves(run, snr, metric)
-            line, = ax.plot(t60, values, marker="os^Dv<>p*h"[i % 10], label=tracker_label(run))
+            # Colours and markers repeat after 10 trackers (matplotlib's cycle): the line style
+            # tells the 11th from the 1st.
+            line, = ax.plot(t60, values, marker="os^Dv<>p*h"[i % 10], linestyle=("-", "--", ":")[i // 10 % 3],
+                            color=f"C{i % 10}", label=tracker_label(run))
             if np.all(np.isfinite(ci)):
                 ax.fill_between(t60, ci[:, 0], ci[:, 1], color=line.get_color(), alpha=0.15, linewidth=0)
         ax.set_title(f"SNR = {snr:g} dB")
