@@ -13,6 +13,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+import doabench
+
 
 class StreamingRunner:
     """Cached causal inference for a model with ``init_state`` and ``stream_step`` (see layers.py).
@@ -41,15 +43,8 @@ class StreamingRunner:
         `doabench run --tracker cross3d:4x8` took 16.8 s with two threads and 1.4 s with one. One
         thread bounds the worst case at a few ms per 192 ms frame.
         """
-        threads = torch.get_num_threads()
-        if threads != 1:
-            torch.set_num_threads(1)
-        try:
-            with torch.inference_mode():
-                y, self.state = self.model.stream_step(x_t, self.state)
-        finally:
-            if threads != 1:
-                torch.set_num_threads(threads)
+        with doabench.single_threaded(), torch.inference_mode():
+            y, self.state = self.model.stream_step(x_t, self.state)
         self.frames += 1
         return y
 

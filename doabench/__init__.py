@@ -79,13 +79,19 @@ def run(tracker, task, **kwargs):
 
 
 def __getattr__(name: str) -> Any:
-    """``TrainableTracker`` and ``ObservationPlan`` on first use: ``import doabench`` stays light
-    (the first's module imports torch; the second's imports gymnasium and builds on torch)."""
+    """``TrainableTracker``, ``single_threaded`` and ``ObservationPlan`` on first use: ``import
+    doabench`` stays light (the first two's modules import torch; the third's imports gymnasium and
+    builds on torch)."""
     if name == "TrainableTracker":
         from doabench.training.protocol import TrainableTracker
 
         globals()[name] = TrainableTracker
         return TrainableTracker
+    if name == "single_threaded":
+        from doabench.acoustics.rir import single_threaded
+
+        globals()[name] = single_threaded
+        return single_threaded
     if name == "ObservationPlan":
         from doabench.features.plan import ObservationPlan
 
@@ -95,7 +101,7 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan"})
+    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan", "single_threaded"})
 
 
 available_tasks()  # registers every task with Gymnasium at import time
@@ -103,5 +109,6 @@ available_tasks()  # registers every task with Gymnasium at import time
 __all__ = [
     "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ResetContext",
     "TaskSpec", "Tracker", "TrainableTracker", "available_tasks", "available_trackers", "get_array", "get_task_spec",
-    "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "srp_maps",
+    "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",
+    "srp_maps",
 ]

@@ -206,7 +206,6 @@ def test_largest_tap_errors_of_the_two_approximations():
     assert np.abs(linear - exact).max() == pytest.approx(6.4e-3, abs=0.1e-3)
 
 
-
 def test_accelerator_work_sizes_give_the_same_simulation(monkeypatch):
     """Off the CPU the torch path and the FFT convolutions work in far larger pieces (fewer kernel
     launches). The pieces change only the order of float32 additions, so a simulation with the

@@ -199,6 +199,9 @@ def test_run_and_sweep_use_one_torch_thread_unless_told(tmp_path, monkeypatch, c
             torch.set_num_threads(2)
             assert main(command + ["--threads", "0", "--out", str(tmp_path / "out")]) == 2
             assert "--threads must be at least 1" in _one_line_error(capsys) and not (tmp_path / "out").exists()
+        # train keeps its own default (None: the trainer chooses) and refuses the same bad values
+        assert main(["train", "--tracker", "cross3d:4x8", "--threads", "-1", "--out", str(tmp_path / "out")]) == 2
+        assert "--threads must be at least 1" in _one_line_error(capsys) and not (tmp_path / "out").exists()
         torch.set_num_threads(2)
         assert main(["run", "--tracker", "srp-max:4x8", "--task", "sim-demo", "--episodes", "1", "--quiet",
                      "--out", str(tmp_path / "out")]) == 0

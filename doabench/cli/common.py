@@ -33,13 +33,16 @@ def add_threads_option(p: argparse.ArgumentParser) -> None:
 
 
 def use_threads(args: argparse.Namespace) -> None:
-    """Set torch's CPU thread count from ``--threads`` (validated: a one-line error below 1).
+    """Set torch's CPU thread count from ``--threads`` (validated: a one-line error below 1; None,
+    where a command's default is its own choice, leaves it as it is).
 
     One by default: an evaluation is many small ops per frame and per episode, and an OpenMP
     region waits for its slowest thread, so a descheduled thread stalls it (docs/performance.md,
     "Threads of doabench run and sweep"). Parallelism comes from processes (`sweep --engine ray`)."""
     from doabench.errors import ConfigError
 
+    if args.threads is None:
+        return
     if args.threads < 1:
         raise ConfigError(f"--threads must be at least 1, got {args.threads}")
     import torch

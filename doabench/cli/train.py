@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from doabench.cli.common import add_tracker_options
+from doabench.cli.common import add_tracker_options, use_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -90,14 +90,11 @@ def build_recipe(args: argparse.Namespace):
 
 
 def main(args: argparse.Namespace) -> int:
-    import torch
-
     from doabench.trackers.registry import make_tracker, parse_options
     from doabench.training.protocol import check_trainable
 
     options = parse_options(args.tracker_opt)
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    use_threads(args)
     if args.compact:
         from doabench.training import checkpoint as ckpt
 
