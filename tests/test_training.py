@@ -189,6 +189,25 @@ def test_cli_rejects_unknown_and_non_learned_trackers(capsys, tmp_path):
         assert needle in err and "\n" not in err and "Traceback" not in err
 
 
+def test_lr_option_sets_each_phase_and_bad_values_are_one_line_errors(capsys, tmp_path):
+    from doabench.cli.main import build_parser, main
+    from doabench.cli.train import build_recipe
+
+    def recipe(*extra):
+        return build_recipe(build_parser().parse_args(["train", "--tracker", "spec-cnn2d", "--out", "r", *extra]))
+
+    assert [p.lr for p in recipe().phases] == [1e-4, 1e-5]  # the paper's
+    assert [p.lr for p in recipe("--lr", "1e-3,1e-4").phases] == [1e-3, 1e-4]
+    one = recipe("--lr", "3e-4", "--switch-epoch", "9")
+    assert [(p.start_epoch, p.lr) for p in one.phases] == [(0, 3e-4), (9, 3e-4)]
+    for bad in ("fast", "1e-3,1e-4,1e-5", "0", "-1e-4,1e-5", "inf"):
+        assert main(["train", "--tracker", "spec-cnn2d", "--tracker-opt", "weights=random", f"--lr={bad}",
+                     "--out", str(tmp_path / "r")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "--lr" in err and "\n" not in err and "Traceback" not in err
+        assert not (tmp_path / "r").exists()
+
+
 def test_export_writes_weights_with_training_metadata(tmp_path, caches):
     from safetensors import safe_open
 

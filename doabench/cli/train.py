@@ -29,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--val-trajectories", type=int, help="validation trajectories (default: the preset's)")
     p.add_argument("--switch-epoch", type=int,
                    help="epoch at which the curriculum's second phase starts (paper: 20; cpu: half the epochs)")
+    p.add_argument("--lr", metavar="LR[,LR...]",
+                   help="learning rate of each curriculum phase, in order (paper: 1e-4,1e-5); one value sets "
+                        "every phase. A new run's recipe only: a resumed run keeps its own")
     p.add_argument("--seed", type=int, default=0, help="run seed (network init and item seeds)")
     p.add_argument("--workers", type=int,
                    help="DataLoader worker processes that simulate and extract features (default: the preset's, "
@@ -86,7 +89,29 @@ def build_recipe(args: argparse.Namespace):
         from dataclasses import replace
 
         changes["phases"] = (recipe.phases[0], replace(recipe.phases[1], start_epoch=max(1, args.epochs // 2)))
+    if args.lr is not None:
+        from dataclasses import replace
+
+        phases = changes.get("phases", recipe.phases)
+        rates = parse_learning_rates(args.lr, len(phases))
+        changes["phases"] = tuple(replace(phase, lr=lr) for phase, lr in zip(phases, rates))
     return recipe.replace(**changes)
+
+
+def parse_learning_rates(text: str, n_phases: int) -> list[float]:
+    """``--lr`` text -> one learning rate per curriculum phase (one value is repeated)."""
+    from doabench.errors import ConfigError
+
+    try:
+        rates = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ConfigError(f"--lr takes comma-separated numbers, got {text!r}") from None
+    if len(rates) == 1:
+        rates *= n_phases
+    if len(rates) != n_phases or not all(r > 0 and r != float("inf") for r in rates):
+        raise ConfigError(f"--lr needs one positive learning rate or {n_phases} (one per curriculum phase), "
+                          f"got {text!r}")
+    return rates
 
 
 def main(args: argparse.Namespace) -> int:
