@@ -65,6 +65,9 @@ def test_queue_skips_exported_runs_resumes_and_exports_in_order(tree):
     # spec-cnn2d's step dwarfs its item: its training process gets both cores' threads
     assert all(f"--threads {2 if c.split()[2] == 'spec-cnn2d' else 1}" in c for c in trains)
     exports = [c.split("--export ")[1] for c in calls if "--export" in c]
+    # the 1D CNNs (11.3 M and 6.9 M parameters) ship as float16, the rest as float32
+    dtypes = [c.split("--export-dtype ")[1].split()[0] for c in calls if "--export" in c]
+    assert dtypes == ["float32", "float32", "float16", "float16", "float32", "float32"]
     assert exports == ["baselines/weights/cross3d-8x16.safetensors", "baselines/weights/cross3d-4x8.safetensors",
                        "baselines/weights/gcc-cnn1d.safetensors", "baselines/weights/max-cnn1d-64x128.safetensors",
                        "baselines/weights/seldnet.safetensors", "baselines/weights/spec-cnn2d.safetensors"]
