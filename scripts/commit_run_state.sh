@@ -42,12 +42,17 @@ ours() {  # PIDs whose command line matches $1 and whose working directory is th
 
 running=$(ours "doabench train")
 if [ -n "$running" ] && [ "$WAIT" = 1 ]; then
-    # the run that is going: the newest checkpoint under training-runs/
-    log=$(ls -t training-runs/*/log.csv 2>/dev/null | head -1)
-    n=$(wc -l < "$log")
-    echo "waiting for the epoch in progress of $(dirname "$log") to finish (at most $MAX_WAIT s)"
+    # the run that is going: the --out of the training process (a run in its first epoch has no
+    # log.csv yet, so the newest log under training-runs/ would name a finished run)
+    pid=$(echo "$running" | head -1)
+    out=$(tr '\0' ' ' < "/proc/$pid/cmdline" 2>/dev/null | sed -n 's/.*--out[= ]\([^ ]*\).*/\1/p')
+    [ -n "$out" ] || out=$(dirname "$(ls -t training-runs/*/log.csv 2>/dev/null | head -1)")
+    log="$out/log.csv"
+    lines() { if [ -f "$log" ]; then wc -l < "$log"; else echo 0; fi; }
+    n=$(lines)
+    echo "waiting for the epoch in progress of $out to finish (at most $MAX_WAIT s)"
     waited=0
-    while [ "$(wc -l < "$log")" -le "$n" ] && [ "$waited" -lt "$MAX_WAIT" ]; do sleep 5; waited=$((waited + 5)); done
+    while [ "$(lines)" -le "$n" ] && [ "$waited" -lt "$MAX_WAIT" ]; do sleep 5; waited=$((waited + 5)); done
 fi
 if [ -n "$running" ]; then
     queue=$(ours "scripts/train_queue.sh")

@@ -80,3 +80,19 @@ def test_training_of_another_checkout_is_left_running(tree):
     finally:
         other.kill()
         other.wait()
+
+
+def test_it_waits_for_the_running_run_even_before_its_first_log_line(tree):
+    """The run to wait for is the training process's --out, not the newest log.csv: a run in its
+    first epoch has none yet, and the newest would be a finished run's."""
+    add_run(tree, "finished", 1000)
+    (tree / "training-runs" / "starting").mkdir()
+    going = subprocess.Popen(["bash", "-c", "exec -a 'doabench train --out training-runs/starting --quiet' sleep 60"],
+                             cwd=tree)
+    try:
+        done = commit_state(tree, "--max-wait", "5")
+        assert "waiting for the epoch in progress of training-runs/starting" in done.stdout
+        going.wait(timeout=40)  # stopped once the wait is over
+    finally:
+        going.kill()
+        going.wait()
