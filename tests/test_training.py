@@ -428,6 +428,29 @@ def test_a_run_from_trained_weights_records_its_start_and_the_export_its_totals(
     assert load_checkpoint(tmp_path / "scratch" / "checkpoint.safetensors")["initial_weights"] is None
 
 
+def test_resume_refuses_recipe_options_that_differ_from_the_run(tmp_path, caches):
+    from doabench.cli.main import build_parser
+    from doabench.cli.train import build_recipe, given_recipe_options
+
+    make_trainer(tmp_path / "run", caches, max_epochs=1).run()
+    faster = tiny_recipe(phases=(Phase(0, (30.0, 30.0), 2, 1e-1), Phase(1, (5.0, 30.0), 4, 1e-3)))
+    with pytest.raises(doabench.DoabenchError, match=r"--lr 0.1,0.001 \(the run's: 0.01,0.001\)"):
+        make_trainer(tmp_path / "run", caches, faster, resume=True, recipe_options=("--lr",))
+    with pytest.raises(doabench.DoabenchError, match=r"--switch-epoch 2 \(the run's: 1\)"):
+        later = tiny_recipe(phases=(Phase(0, (30.0, 30.0), 2, 1e-2), Phase(2, (5.0, 30.0), 4, 1e-3)))
+        make_trainer(tmp_path / "run", caches, later, resume=True, recipe_options=("--switch-epoch", "--seed"))
+    # options that agree with the run, and options not given, let it resume with its own recipe
+    same = make_trainer(tmp_path / "run", caches, faster, resume=True, recipe_options=("--switch-epoch", "--seed"))
+    assert [p.lr for p in same.recipe.phases] == [1e-2, 1e-3]
+    # the CLI passes exactly the recipe options the user typed
+    args = build_parser().parse_args(["train", "--tracker", "spec-cnn2d", "--out", "r", "--lr", "1e-3", "--resume"])
+    assert given_recipe_options(args) == ("--lr",)
+    assert build_recipe(args).name == "paper" and build_recipe(args).seed == 0
+    args = build_parser().parse_args(["train", "--tracker", "spec-cnn2d", "--out", "r", "--preset", "cpu",
+                                      "--seed", "3", "--epoch-size", "7"])
+    assert given_recipe_options(args) == ("--preset", "--seed", "--epoch-size")
+
+
 def test_resume_refuses_a_run_of_another_task_version(tmp_path, caches):
     from doabench.training import checkpoint as ckpt
 

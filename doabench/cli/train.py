@@ -16,11 +16,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train a learned tracker (Cross3D, 1D/2D CNNs, SELDnet)",
                        description="Train a learned tracker with the Cross3D paper's recipe (--preset paper) or the "
                                    "CPU preset (--preset cpu, cached trajectories). Checkpoints every epoch; "
-                                   "--resume continues exactly. See docs/training.md.")
+                                   "--resume continues exactly, with the run's own recipe: a recipe option given with "
+                                   "--resume must agree with it (only --epochs may change). See docs/training.md.")
     add_tracker_options(p, help="learned tracker to train: cross3d:16x32 (any resolution), max-cnn1d, gcc-cnn1d, "
                                 "spec-cnn2d, seldnet, or a package.module:Class plug-in with a trainable network")
     p.add_argument("--task", default="sim-train", help="training distribution (default: sim-train)")
-    p.add_argument("--preset", choices=["paper", "cpu", "finetune"], default="paper",
+    p.add_argument("--preset", choices=["paper", "cpu", "finetune"],
                    help="training recipe (default: paper); finetune: 10 epochs at the paper's second phase "
                         "(lr 3e-5, then 1e-5) from the tracker's trained weights, for a changed training task")
     p.add_argument("--epochs", type=int, help="number of epochs (default: the preset's)")
@@ -31,8 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="epoch at which the curriculum's second phase starts (paper: 20; cpu: half the epochs)")
     p.add_argument("--lr", metavar="LR[,LR...]",
                    help="learning rate of each curriculum phase, in order (paper: 1e-4,1e-5); one value sets "
-                        "every phase. A new run's recipe only: a resumed run keeps its own")
-    p.add_argument("--seed", type=int, default=0, help="run seed (network init and item seeds)")
+                        "every phase")
+    p.add_argument("--seed", type=int, help="run seed (network init and item seeds; default 0)")
     p.add_argument("--workers", type=int,
                    help="DataLoader worker processes that simulate and extract features (default: the preset's, "
                         "at most the cores but one)")
@@ -69,29 +70,34 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=main)
 
 
+def given_recipe_options(args: argparse.Namespace) -> tuple[str, ...]:
+    """The recipe options (:data:`~doabench.training.recipes.RECIPE_OPTIONS`) given on the command
+    line: a resumed run checks them against its own recipe."""
+    from doabench.training.recipes import RECIPE_OPTIONS
+
+    return tuple(flag for flag in RECIPE_OPTIONS if getattr(args, flag[2:].replace("-", "_")) is not None)
+
+
 def build_recipe(args: argparse.Namespace):
+    from dataclasses import replace
+
     from doabench.errors import ConfigError
     from doabench.training.recipes import get_recipe
 
-    recipe = get_recipe(args.preset)
-    changes = {"seed": args.seed}
+    preset = args.preset or "paper"
+    recipe = get_recipe(preset)
+    changes = {"seed": args.seed or 0}
     for arg, key in (("epochs", "epochs"), ("epoch_size", "trajectories_per_epoch"), ("cache_size", "cache_size"),
                      ("val_trajectories", "val_trajectories")):
         if getattr(args, arg) is not None:
             changes[key] = getattr(args, arg)
     if args.switch_epoch is not None:
-        from dataclasses import replace
-
         if len(recipe.phases) < 2 or args.switch_epoch < 1:
             raise ConfigError("--switch-epoch needs a two-phase recipe and an epoch >= 1")
         changes["phases"] = (recipe.phases[0], replace(recipe.phases[1], start_epoch=args.switch_epoch))
-    elif args.preset == "cpu" and args.epochs is not None:
-        from dataclasses import replace
-
+    elif preset == "cpu" and args.epochs is not None:
         changes["phases"] = (recipe.phases[0], replace(recipe.phases[1], start_epoch=max(1, args.epochs // 2)))
     if args.lr is not None:
-        from dataclasses import replace
-
         phases = changes.get("phases", recipe.phases)
         rates = parse_learning_rates(args.lr, len(phases))
         changes["phases"] = tuple(replace(phase, lr=lr) for phase, lr in zip(phases, rates))
@@ -142,7 +148,7 @@ def main(args: argparse.Namespace) -> int:
                         resume=args.resume, threads=args.threads, progress=not args.quiet,
                         max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
                         dataset=Path(args.dataset) if args.dataset else None, epochs=args.epochs,
-                        precision=args.precision, workers=args.workers, device=args.device,
+                        recipe_options=given_recipe_options(args), precision=args.precision, workers=args.workers, device=args.device,
                         compile=recipe.data == "simulate" if args.compile is None else args.compile)
     if args.build_cache:
         from doabench.training.distributed import is_distributed_launch

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, Iterable
 
 from doabench.errors import ConfigError
 
@@ -138,3 +138,29 @@ def get_recipe(name: str) -> Recipe:
     if name not in PRESETS:
         raise ConfigError(f"unknown training preset {name!r} (choose from {', '.join(PRESETS)})")
     return PRESETS[name]()
+
+
+# The `doabench train` options that set part of a recipe, each with what it sets. A resumed run
+# keeps the recipe it started with (only --epochs may change), so an option given with --resume
+# must agree with the run's own recipe: silently ignoring it would train something else than asked.
+RECIPE_OPTIONS: dict[str, Callable[[Recipe], Any]] = {
+    "--preset": lambda r: r.name,
+    "--seed": lambda r: r.seed,
+    "--epoch-size": lambda r: r.trajectories_per_epoch,
+    "--cache-size": lambda r: r.cache_size,
+    "--val-trajectories": lambda r: r.val_trajectories,
+    "--switch-epoch": lambda r: ",".join(str(p.start_epoch) for p in r.phases[1:]),
+    "--lr": lambda r: ",".join(f"{p.lr:g}" for p in r.phases),
+}
+
+
+def resume_conflicts(saved: Recipe, requested: Recipe, given: Iterable[str]) -> list[str]:
+    """For each recipe option in ``given`` (command-line flags of :data:`RECIPE_OPTIONS`) whose
+    value in ``requested`` differs from the resumed run's ``saved`` recipe: ``"--lr 0.001,0.0001
+    (the run's: 0.0001,1e-05)"``. Empty when the options agree with the run."""
+    conflicts = []
+    for flag in given:
+        value = RECIPE_OPTIONS[flag]
+        if value(requested) != value(saved):
+            conflicts.append(f"{flag} {value(requested)} (the run's: {value(saved)})")
+    return conflicts

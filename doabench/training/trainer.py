@@ -35,7 +35,7 @@ from doabench.training.data import (CachedItems, DatasetItems, NetworkInputs, Si
 from doabench.training.pipeline import (DEFAULT_CACHE_ROOT, cache_folder, ensure_cache, scene_distribution,
                                         speech_for_split)
 from doabench.training.protocol import check_trainable, feature_options, training_defaults
-from doabench.training.recipes import Recipe
+from doabench.training.recipes import Recipe, resume_conflicts
 
 FeatureFn = Callable[[torch.Tensor, torch.Tensor], Mapping[str, torch.Tensor]]
 CSV_COLUMNS = ("epoch", "phase_snr", "batch_size", "lr", "train_loss", "val_loss", "val_rmsae_all",
@@ -62,6 +62,9 @@ class TrainOptions:
     min_cache: int = 1             # wait for at least this many cached training trajectories
     dataset: Path | None = None    # train from a `doabench make-dataset` file instead
     epochs: int | None = None      # on --resume: a new epoch count (None keeps the run's)
+    # recipe options given explicitly (flags of recipes.RECIPE_OPTIONS): on --resume each must
+    # agree with the run's own recipe, which the run keeps
+    recipe_options: tuple[str, ...] = ()
     tracker_options: dict[str, Any] = field(default_factory=dict)
     precision: str = "auto"        # auto: bf16 autocast where the CPU has native bf16 (or on CUDA), else fp32
     compile: bool = False          # torch.compile the network's training forward (channels-last 3D maps)
@@ -142,6 +145,10 @@ class Trainer:
         recipe = options.recipe
         if self.saved is not None:  # the run keeps its recipe; only the epoch count may change
             recipe = Recipe.from_dict(self.saved["recipe"])
+            if conflicts := resume_conflicts(recipe, options.recipe, options.recipe_options):
+                raise ConfigError(f"{self.out} keeps the recipe it started with (only --epochs may change on "
+                                  f"--resume), but {'; '.join(conflicts)}: drop the option or start a new run "
+                                  "in another --out")
             if options.epochs is not None:
                 recipe = recipe.replace(epochs=options.epochs)
         self.device = torch.device(options.device)
