@@ -451,6 +451,19 @@ def test_resume_refuses_recipe_options_that_differ_from_the_run(tmp_path, caches
     assert given_recipe_options(args) == ("--preset", "--seed", "--epoch-size")
 
 
+def test_resume_refuses_another_task_or_a_network_that_does_not_fit(tmp_path, caches):
+    make_trainer(tmp_path / "run", caches, max_epochs=1).run()
+    with pytest.raises(doabench.DoabenchError, match="trained on task sim-train, not sim-grid"):
+        make_trainer(tmp_path / "run", caches, resume=True, task="sim-grid")
+
+    wider = TinyTracker()
+    wider.network = TinyNet(channels=M + 1)
+    opts = TrainOptions(tracker="tiny-wide", out=tmp_path / "run", recipe=tiny_recipe(), progress=False, resume=True)
+    with pytest.raises(doabench.DoabenchError, match="holds a run of tiny whose weights do not fit tiny-wide"):
+        Trainer(opts, tracker=wider, feature_fn=energy_features, train_cache=caches[0], val_cache=caches[1],
+                log=lambda m: None)
+
+
 def test_resume_refuses_a_run_of_another_task_version(tmp_path, caches):
     from doabench.training import checkpoint as ckpt
 

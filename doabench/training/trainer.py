@@ -175,6 +175,8 @@ class Trainer:
             recipe = recipe.replace(t60=tuple(defaults["t60"]))
         self.recipe = recipe
         self.network: torch.nn.Module = self.tracker.network
+        if self.saved is not None:
+            self._check_same_network()
         self.network.to(self.device)
         self.channels_last = bool(options.compile) and any(isinstance(m, torch.nn.Conv3d)
                                                            for m in self.network.modules())
@@ -211,8 +213,12 @@ class Trainer:
         return ckpt.load_checkpoint(path)
 
     def _check_task_version(self) -> None:
-        """A run continues on the task version it started with: a changed training distribution
-        would silently mix two datasets in one run."""
+        """A run continues on the task (and task version) it started with: a changed training
+        distribution would silently mix two datasets in one run."""
+        task = self.saved.get("task")
+        if task is not None and task != self.spec.id:
+            raise ConfigError(f"{self.out} was trained on task {task}, not {self.spec.id}; resume it with --task "
+                              f"{task} or start a new run in another --out")
         version = self.saved.get("task_version")
         config = self.out / "config.json"
         if version is None and config.exists():  # states written before checkpoints recorded it
@@ -221,6 +227,16 @@ class Trainer:
             raise ConfigError(f"{self.out} was trained on {self.spec.id} version {version} and the task is now "
                               f"version {self.spec.version}; start a new run (another --out) or continue it with "
                               f"the version {version} task file")
+
+    def _check_same_network(self) -> None:
+        """The resumed run's weights must fit the asked tracker's network (a different model or
+        resolution would otherwise fail deep in ``load_state_dict``)."""
+        want = {k: tuple(v.shape) for k, v in self.network.state_dict().items()}
+        have = {k: tuple(v.shape) for k, v in self.saved["model"].items()}
+        if want != have:
+            raise ConfigError(f"{self.out} holds a run of {self.saved.get('tracker', 'another tracker')} whose "
+                              f"weights do not fit {self.options.tracker}; resume it with that --tracker or "
+                              "start a new run in another --out")
 
     def _default_features(self) -> FeatureFn:
         """Batched features ``(B, M, L)`` audio -> ``{kind: (B, T, ...)}`` tensors on the training
