@@ -63,8 +63,11 @@ def grid_targets(folder: Path, lines: list[str]) -> list[str]:
         lines.append(f"| {cell} | {a:.2f} | {b:.2f} | {k:.2f} | {t1} | {t2} |")
     if small is not None and maxcnn is not None:
         a, b = small["summary"]["rmsae_all"], maxcnn["summary"]["rmsae_all"]
+        lower = sum(c["rmsae_all"] < maxcnn["cells"][cell]["rmsae_all"] for cell, c in small["cells"].items())
         lines += ["", f"cross3d:4x8 {a:.2f} deg vs max-cnn1d:64x128 {b:.2f} deg (pooled, all frames): "
-                      f"{'yes' if a < b else 'NO'}"]
+                      f"{'yes' if a < b else 'NO'}; 4x8 lower in {lower} of {len(small['cells'])} cells; "
+                      f"non-silent {small['summary']['rmsae_nonsilent']:.2f} vs "
+                      f"{maxcnn['summary']['rmsae_nonsilent']:.2f} deg"]
         missed += [f"cross3d:4x8 {a:.2f} does not beat max-cnn1d:64x128 {b:.2f}"] if a >= b else []
     return missed
 
