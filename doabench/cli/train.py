@@ -86,7 +86,7 @@ def build_recipe(args: argparse.Namespace):
 
     preset = args.preset or "paper"
     recipe = get_recipe(preset)
-    changes = {"seed": args.seed or 0}
+    changes = {"seed": 0 if args.seed is None else args.seed}
     for arg, key in (("epochs", "epochs"), ("epoch_size", "trajectories_per_epoch"), ("cache_size", "cache_size"),
                      ("val_trajectories", "val_trajectories")):
         if getattr(args, arg) is not None:
@@ -148,7 +148,8 @@ def main(args: argparse.Namespace) -> int:
                         resume=args.resume, threads=args.threads, progress=not args.quiet,
                         max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
                         dataset=Path(args.dataset) if args.dataset else None, epochs=args.epochs,
-                        recipe_options=given_recipe_options(args), precision=args.precision, workers=args.workers, device=args.device,
+                        recipe_options=given_recipe_options(args), precision=args.precision,
+                        workers=args.workers, device=args.device,
                         compile=recipe.data == "simulate" if args.compile is None else args.compile)
     if args.build_cache:
         from doabench.training.distributed import is_distributed_launch
