@@ -531,3 +531,44 @@ def test_held_frame_index_is_batched_and_matches_the_tracker_rule():
     assert all(np.array_equal(held_frame_index(v, 2), i) for v, i in zip(vad, index))
     with pytest.raises(doabench.DoabenchError, match="hold must be >= 1"):
         held_frame_index(vad, 0)
+
+
+def test_a_bf16_run_resumed_on_a_cpu_without_native_bf16_continues_in_fp32(tmp_path, caches, monkeypatch):
+    """Emulated bf16 autocast is ~13x slower than float32 (AVX2-only CPU): auto falls back, says so,
+    and the per-epoch record and the exported weights show both precisions."""
+    import doabench.training.trainer as trainer_module
+    from doabench.training.export import precision_record
+
+    make_trainer(tmp_path / "run", caches, max_epochs=1, precision="bf16").run()
+    monkeypatch.setattr(trainer_module, "cpu_has_native_bf16", lambda: False)
+    notes: list[str] = []
+    opts = TrainOptions(tracker="tiny", out=tmp_path / "run", recipe=tiny_recipe(), progress=False, resume=True)
+    resumed = Trainer(opts, tracker=tiny_tracker(), feature_fn=energy_features, train_cache=caches[0],
+                      val_cache=caches[1], log=notes.append)
+    assert resumed.precision == "fp32"
+    assert any("no native bf16" in n and "continues in fp32" in n for n in notes)
+    resumed.run()
+    from doabench.training.checkpoint import load_checkpoint
+
+    state = load_checkpoint(tmp_path / "run" / "checkpoint.safetensors")
+    assert [h["precision"] for h in state["history"]] == ["bf16", "fp32"]
+    assert precision_record(state) == "bf16 (epoch 1), fp32 (epoch 2)"
+
+
+def test_resume_precision_keeps_the_run_unless_told_or_unsupported(monkeypatch):
+    import doabench.training.trainer as trainer_module
+    from doabench.training.trainer import resume_precision
+
+    cpu = torch.device("cpu")
+    monkeypatch.setattr(trainer_module, "cpu_has_native_bf16", lambda: True)
+    assert resume_precision("bf16", "auto", cpu) == ("bf16", None)
+    assert resume_precision("fp32", "auto", cpu) == ("fp32", None)  # auto does not upgrade a run either
+    assert resume_precision(None, "auto", cpu) == ("bf16", None)
+    precision, note = resume_precision("bf16", "fp32", cpu)
+    assert precision == "fp32" and "--precision" in note
+    monkeypatch.setattr(trainer_module, "cpu_has_native_bf16", lambda: False)
+    assert resume_precision(None, "auto", cpu) == ("fp32", None)
+    assert resume_precision("bf16", "bf16", cpu) == ("bf16", None)  # forced: kept, however slow
+    assert resume_precision("bf16", "auto", cpu)[0] == "fp32"
+    with pytest.raises(doabench.DoabenchError, match="precision"):
+        resume_precision("bf16", "fp16", cpu)

@@ -38,7 +38,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
             "distinct_trajectories": int(row.get("trajectories_seen") or state["trajectories_seen"])
             if state["recipe"].get("data") == "simulate" else (row.get("n_cache") or None),
             "compute_s": round(float(row.get("compute_s") or state["compute_s"]), 1),
-            "precision": state.get("precision", "float32"),
+            "precision": precision_record(state),
             "hardware": f"{state.get('device', 'cpu')} ({platform.machine()}), "
                         f"{state.get('threads', '?')} torch threads",
             "cached_trajectories": row.get("n_cache") or None,
@@ -58,6 +58,22 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
             if before.get(key) is not None:
                 meta["training"][f"{key}_total"] = round(meta["training"][key] + float(before[key]), 1)
     return meta
+
+
+def precision_record(state: dict[str, Any]) -> str:
+    """The training precision of a run: ``"bf16"``, or per stretch of epochs where a resumed run
+    changed it (``"bf16 (epochs 1-17), fp32 (epoch 18)"``, e.g. resumed on a CPU without bf16)."""
+    saved = state.get("precision", "float32")
+    stretches: list[list[Any]] = []  # [precision, first epoch, last epoch]
+    for row in state.get("history") or []:
+        precision = row.get("precision") or saved
+        if stretches and stretches[-1][0] == precision:
+            stretches[-1][2] = row["epoch"]
+        else:
+            stretches.append([precision, row["epoch"], row["epoch"]])
+    if len(stretches) <= 1:
+        return stretches[0][0] if stretches else saved
+    return ", ".join(f"{p} (epoch {a})" if a == b else f"{p} (epochs {a}-{b})" for p, a, b in stretches)
 
 
 def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best", tracker: Any = None,

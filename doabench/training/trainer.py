@@ -88,6 +88,28 @@ def resolve_precision(precision: str, device: torch.device) -> str:
     return precision
 
 
+def resume_precision(saved: str | None, requested: str, device: torch.device) -> tuple[str, str | None]:
+    """The precision a run trains in, and a note to print when it is not the run's saved one.
+
+    A new run (``saved`` None) resolves ``requested``. A resumed run keeps its saved precision,
+    except that an explicit ``--precision`` wins (autocast only rounds activations: master weights,
+    loss and Adam state stay float32, so the checkpoint is the same either way) and that ``auto``
+    falls back to fp32 for a bf16 run resumed on a CPU without native bf16, where autocast is
+    emulated: 12.8x slower than float32 for a Cross3D 4x8 step on an AVX2-only AMD EPYC
+    (docs/training.md)."""
+    if saved is None:
+        return resolve_precision(requested, device), None
+    if requested != "auto":
+        precision = resolve_precision(requested, device)
+        if precision == saved:
+            return precision, None
+        return precision, f"note: the run trained in {saved} so far; it continues in {precision} (--precision)"
+    if saved == "bf16" and device.type == "cpu" and not cpu_has_native_bf16():
+        return "fp32", ("note: the run trained in bf16 so far, but this CPU has no native bf16 (autocast would be "
+                        "emulated, about 13x slower): it continues in fp32 (--precision bf16 forces bf16)")
+    return saved, None
+
+
 def available_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
@@ -155,7 +177,9 @@ class Trainer:
         if self.device.type == "cuda" and not torch.cuda.is_available():
             raise ConfigError("--device cuda requested but torch has no CUDA device here")
         saved_precision = None if self.saved is None else self.saved.get("precision")
-        self.precision = saved_precision or resolve_precision(options.precision, self.device)
+        self.precision, note = resume_precision(saved_precision, options.precision, self.device)
+        if note:
+            log(note)
         torch.manual_seed(recipe.seed)  # network initialisation
         self.tracker = tracker if tracker is not None else make_tracker(options.tracker, **options.tracker_options)
         check_trainable(self.tracker, options.tracker)
@@ -395,6 +419,8 @@ class Trainer:
             self.optimizer.load_state_dict(s["optimizer"])
             ckpt.set_rng_state(s["rng"])
             start, history, best = int(s["epoch"]), list(s["history"]), float(s["best"])
+            # Rows of runs that predate the per-epoch record trained in the run's saved precision.
+            history = [{"precision": s.get("precision"), **row} for row in history]
             compute_s, seen = float(s["compute_s"]), int(s["trajectories_seen"])
             self.log(f"resuming {self.out} after epoch {start}")
         if self.is_writer:  # data-parallel hook
@@ -433,7 +459,7 @@ class Trainer:
             compute_s += epoch_s
             seen += len(items)
             row = {"epoch": epoch + 1, "phase_snr": f"{phase.snr[0]:g}-{phase.snr[1]:g}",
-                   "batch_size": phase.batch_size, "lr": phase.lr, "train_loss": float(np.mean(losses)),
+                   "precision": self.precision, "batch_size": phase.batch_size, "lr": phase.lr, "train_loss": float(np.mean(losses)),
                    **metrics, "n_cache": n_cache, "trajectories_seen": seen, "epoch_s": round(epoch_s, 1),
                    "compute_s": round(compute_s, 1), "trajectories_per_s": round(len(items) / epoch_s, 3)}
             history.append(row)
