@@ -458,8 +458,8 @@ class Trainer:
             epoch_s = time.perf_counter() - t0
             compute_s += epoch_s
             seen += len(items)
-            row = {"epoch": epoch + 1, "phase_snr": f"{phase.snr[0]:g}-{phase.snr[1]:g}",
-                   "precision": self.precision, "batch_size": phase.batch_size, "lr": phase.lr, "train_loss": float(np.mean(losses)),
+            row = {"epoch": epoch + 1, "phase_snr": f"{phase.snr[0]:g}-{phase.snr[1]:g}", "precision": self.precision,
+                   "batch_size": phase.batch_size, "lr": phase.lr, "train_loss": float(np.mean(losses)),
                    **metrics, "n_cache": n_cache, "trajectories_seen": seen, "epoch_s": round(epoch_s, 1),
                    "compute_s": round(compute_s, 1), "trajectories_per_s": round(len(items) / epoch_s, 3)}
             history.append(row)
