@@ -81,3 +81,44 @@ def test_explicit_random_runs_and_is_marked_untrained(tmp_path: Path) -> None:
     trained = doabench.run(tracker="cross3d:4x8", task="sim-demo", episodes=1, progress=False,
                            scene_overrides=QUICK_SCENE)
     assert trained["tracker"]["trained"] is True and "untrained" not in trained["tracker"]
+
+
+def test_cli_refusal_is_the_only_line_on_stderr(tmp_path: Path, capsys) -> None:
+    """The learned tracker warns Python callers that it fell back to random weights; on the
+    command line the refusal says it, so no warning may print above it (warnings not silenced)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["run", "--tracker", UNTRAINED, "--task", "sim-demo", "--episodes", "1", "--quiet",
+                     "--out", str(tmp_path / "results")]) == 2
+        assert main(["export", "--tracker", UNTRAINED, "--out", str(tmp_path / "m.onnx")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and err[0].startswith("doabench run: error:") and err[1].startswith(
+        "doabench export: error:"), err
+    assert not caught, [str(w.message) for w in caught]  # none was raised either
+    assert not (tmp_path / "m.onnx").exists()
+
+
+def test_cli_prints_a_warning_as_one_line(tmp_path: Path, capsys) -> None:
+    """A warning raised while a command runs (here by a tracker plugin as it is built) prints as
+    ``doabench COMMAND: warning: ...`` on one line, without Python's file, line and source line."""
+    import numpy as np
+
+    @doabench.register_tracker("toy-warning-test")
+    class Warns(doabench.Tracker):
+        features = ("srp",)
+
+        def __init__(self, **options) -> None:
+            super().__init__(**options)
+            warnings.warn("toy tracker: this is\na warning", UserWarning)
+
+        def step(self, observation):
+            return np.array([0.0, 0.0, 1.0])
+
+    shown_before = warnings.showwarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        assert main(["run", "--tracker", "toy-warning-test", "--task", "sim-demo", "--episodes", "1", "--quiet",
+                     "--no-frames", "--out", str(tmp_path / "results")]) == 0
+    assert warnings.showwarning is shown_before  # Python's own format again after main()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["doabench run: warning: toy tracker: this is a warning"], err

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import warnings
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable
 
 
 def add_tracker_options(p: argparse.ArgumentParser, required: bool = True, default: str | None = None,
@@ -13,6 +14,25 @@ def add_tracker_options(p: argparse.ArgumentParser, required: bool = True, defau
     p.add_argument("--tracker", required=required, default=default, help=help)
     p.add_argument("--tracker-opt", action="append", default=[], metavar="KEY=VALUE",
                    help="option passed to the tracker's constructor (repeatable), e.g. weights=FILE")
+
+
+def make_checked_tracker(tracker_id: str, options: dict[str, Any]) -> Any:
+    """The tracker a command is about to run or export, refused with one line (exit 2) when it is a
+    learned model without trained weights and ``weights=random`` was not given.
+
+    The warnings the tracker raises while it is built are held back until it passes that check:
+    a learned tracker warns Python callers that it fell back to random weights, which on the
+    command line would only repeat, above it, what the refusal says."""
+    from doabench.runner import check_trained
+    from doabench.trackers.registry import make_tracker
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        tracker = make_tracker(tracker_id, **options)
+    check_trained(tracker)
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return tracker
 
 
 def add_corpus_options(p: argparse.ArgumentParser) -> None:

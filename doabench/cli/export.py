@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from doabench.cli.common import add_tracker_options, check_output_file
+from doabench.cli.common import add_tracker_options, check_output_file, make_checked_tracker
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,12 +20,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from doabench.export_onnx import export_onnx
-    from doabench.runner import check_trained
-    from doabench.trackers.registry import make_tracker, parse_options
+    from doabench.trackers.registry import parse_options
 
     check_output_file(args.out)
-    tracker = make_tracker(args.tracker, **parse_options(args.tracker_opt))
-    check_trained(tracker)  # an untrained model is exported only with weights=random
+    # An untrained model is exported only with weights=random.
+    tracker = make_checked_tracker(args.tracker, parse_options(args.tracker_opt))
     info = export_onnx(tracker, args.out, tracker_id=args.tracker)
     check = ("not verified (install onnxruntime: pip install 'doabench[onnx]')" if info["max_abs_diff"] is None
              else f"verified with onnxruntime (max |difference| {info['max_abs_diff']:.2e})")

@@ -10,6 +10,7 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
 from doabench._version import __version__
 from doabench.errors import DoabenchError
@@ -51,12 +52,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line_warnings(command: str):
+    """A ``warnings.showwarning`` that prints ``doabench COMMAND: warning: MESSAGE`` as one line,
+    like the errors: Python's default adds the file, line number and source line of the call,
+    which tell a command-line user nothing."""
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"doabench {command}: warning: {' '.join(str(message).split())}", file=file or sys.stderr)
+
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 1
+    with warnings.catch_warnings():  # restores Python's own format when main() returns
+        warnings.showwarning = one_line_warnings(args.command)
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except DoabenchError as exc:

@@ -29,17 +29,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     from doabench.results.writer import check_overwrite, configuration, format_summary, results_stem, write_results
     from doabench.runner import run_task
-    from doabench.trackers.registry import make_tracker, parse_options
+    from doabench.trackers.registry import parse_options
     from doabench.envs.registry import get_task_spec
 
-    from doabench.cli.common import check_output_folder
-    from doabench.runner import check_trained, run_lock
+    from doabench.cli.common import check_output_folder, make_checked_tracker
+    from doabench.runner import run_lock
 
     check_output_folder(args.out)  # before the work, not after it
     use_threads(args)
     options = parse_options(args.tracker_opt)
-    tracker = make_tracker(args.tracker, **options)
-    check_trained(tracker)  # before any file or folder is made
+    tracker = make_checked_tracker(args.tracker, options)  # before any file or folder is made
     spec = get_task_spec(args.task)
     if args.vad and spec.kind != "locata":
         from doabench.errors import ConfigError

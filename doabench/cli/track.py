@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from doabench.cli.common import add_tracker_options, check_output_file
+from doabench.cli.common import add_tracker_options, check_output_file, make_checked_tracker
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -133,7 +133,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.arrays import get_array
     from doabench.recording import open_recording
     from doabench.results.files import atomic_path
-    from doabench.trackers.registry import make_tracker, parse_options
+    from doabench.trackers.registry import parse_options
 
     # Every output is checked before the work: none may be an input, a folder or unwritable.
     check_output_file(args.out, [args.recording, args.array], "--out")
@@ -146,10 +146,10 @@ def main(args: argparse.Namespace) -> int:
             from doabench.errors import InputError
 
             raise InputError(f"--truth {args.truth} does not exist")
-    tracker = make_tracker(args.tracker, **parse_options(args.tracker_opt))
-    from doabench.runner import check_trained, recordings
+    # An untrained learned model is refused unless weights=random.
+    tracker = make_checked_tracker(args.tracker, parse_options(args.tracker_opt))
+    from doabench.runner import recordings
 
-    check_trained(tracker)  # an untrained learned model is refused unless weights=random
     array = get_array(args.array)
     spec = tracker.frame_spec
     # Read block by block (never the whole recording): memory does not grow with its length.
