@@ -18,6 +18,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 
 def load(folder: Path, task: str, stem: str) -> dict | None:
     """The results of ``stem`` on ``task``, or None when there are none for the task's current
@@ -38,6 +40,22 @@ def describe(r: dict) -> str:
            f"{r['task']['episodes_run']} episodes)"
 
 
+def paired(a: dict, b: dict, cell: str | None = None) -> str:
+    """``a - b`` over all frames with its paired 95% bootstrap interval over the episodes both ran
+    (of one cell, or all), as text; empty when either file has no per-episode rows or their
+    episodes differ (then only the two runs' own intervals compare them)."""
+    from doabench.metrics import paired_difference_ci
+
+    rows = [[e for e in r.get("episodes", []) if cell is None or e["task"] == cell] for r in (a, b)]
+    if not rows[0] or [e["seed"] for e in rows[0]] != [e["seed"] for e in rows[1]]:
+        return ""
+    sums = [(np.array([e["rmsae_all"] for e in r]) ** 2 * [e["n_frames"] for e in r], [e["n_frames"] for e in r])
+            for r in rows]
+    d, lo, hi = paired_difference_ci(*sums[0], *sums[1])
+    verdict = "a tie at 95 %" if lo <= 0 <= hi else "significant at 95 %"
+    return f"difference {d:+.2f} deg [{lo:+.2f}, {hi:+.2f}] (paired bootstrap over {len(rows[0])} episodes: {verdict})"
+
+
 def grid_targets(folder: Path, lines: list[str]) -> list[str]:
     """Append the sim-grid table to ``lines``; return the missed targets."""
     model, srp, kalman = (load(folder, "sim-grid", s) for s in ("cross3d_16x32", "srp-max_16x32", "srp-kalman_32x64"))
@@ -54,6 +72,7 @@ def grid_targets(folder: Path, lines: list[str]) -> list[str]:
         missed.append(f"pooled sim-grid RMSAE {pooled:.2f} > 10 deg")
     lines += ["", "| cell | cross3d:16x32 | srp-max:16x32 | srp-kalman:32x64 | beats srp-max (T60 >= 0.3) "
               "| beats srp-kalman (T60 >= 0.6) |", "|---|---|---|---|---|---|"]
+    notes: list[str] = []  # the paired comparison of each cell the model loses
     for cell, c in model["cells"].items():
         a, b, k = c["rmsae_all"], srp["cells"][cell]["rmsae_all"], kalman["cells"][cell]["rmsae_all"]
         t1 = ("yes" if a < b else "NO") if c["t60"] >= 0.3 else "-"
@@ -61,6 +80,10 @@ def grid_targets(folder: Path, lines: list[str]) -> list[str]:
         missed += [f"{cell}: {a:.2f} vs srp-max:16x32 {b:.2f}"] if t1 == "NO" else []
         missed += [f"{cell}: {a:.2f} vs srp-kalman:32x64 {k:.2f}"] if t2 == "NO" else []
         lines.append(f"| {cell} | {a:.2f} | {b:.2f} | {k:.2f} | {t1} | {t2} |")
+        for name, other, verdict in (("srp-max:16x32", srp, t1), ("srp-kalman:32x64", kalman, t2)):
+            if verdict == "NO" and (text := paired(model, other, cell)):
+                notes.append(f"{cell}, cross3d:16x32 - {name}: {text}")
+    lines += [""] + notes if notes else []
     if small is not None and maxcnn is not None:
         a, b = small["summary"]["rmsae_all"], maxcnn["summary"]["rmsae_all"]
         lower = sum(c["rmsae_all"] < maxcnn["cells"][cell]["rmsae_all"] for cell, c in small["cells"].items())
@@ -68,6 +91,8 @@ def grid_targets(folder: Path, lines: list[str]) -> list[str]:
                       f"{'yes' if a < b else 'NO'}; 4x8 lower in {lower} of {len(small['cells'])} cells; "
                       f"non-silent {small['summary']['rmsae_nonsilent']:.2f} vs "
                       f"{maxcnn['summary']['rmsae_nonsilent']:.2f} deg"]
+        if text := paired(small, maxcnn):
+            lines.append(f"cross3d:4x8 - max-cnn1d:64x128: {text}")
         missed += [f"cross3d:4x8 {a:.2f} does not beat max-cnn1d:64x128 {b:.2f}"] if a >= b else []
     return missed
 

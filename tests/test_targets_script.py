@@ -58,6 +58,23 @@ def test_targets_missed_and_missing_are_listed(tmp_path):
     assert "sim-pauses results missing" in _run(tmp_path).stdout
 
 
+def test_a_lost_cell_gets_its_paired_difference(tmp_path):
+    """With per-episode rows on the same seeds, a cell the model loses is compared pairwise: one
+    the model loses in every episode is significant; the 4x8 comparison gets its own line."""
+    _grid(tmp_path, [6.0, 8.0, 16.0])  # loses to srp-kalman (15) at T60 0.9
+    for stem, per_episode in (("cross3d_16x32", [16.0, 17.0]), ("srp-kalman_32x64", [15.0, 16.0]),
+                              ("cross3d_4x8", [9.0, 10.0]), ("max-cnn1d_64x128", [12.0, 8.0])):
+        path = tmp_path / f"sim-grid__{stem}.json"
+        r = json.loads(path.read_text())
+        r["episodes"] = [{"task": "sim-t60-0.9-snr-30.0", "seed": seed, "rmsae_all": v, "n_frames": 100}
+                         for seed, v in zip((11, 12), per_episode)]
+        path.write_text(json.dumps(r))
+    out = _run(tmp_path).stdout
+    assert "sim-t60-0.9-snr-30.0, cross3d:16x32 - srp-kalman:32x64: difference +1.00 deg [+1.00, +1.00] " \
+           "(paired bootstrap over 2 episodes: significant at 95 %)" in out, out
+    assert "cross3d:4x8 - max-cnn1d:64x128: difference -0.68 deg" in out and "a tie at 95 %" in out, out
+
+
 def test_pause_hold_bound(tmp_path):
     """The hold-the-truth oracle: 90° before the first voice-active frame, then the angle the
     source has moved since the last voice-active frame; the tracker's own RMSAE beside it."""
