@@ -18,10 +18,10 @@ LEARNED="cross3d:4x8,cross3d:8x16,cross3d:16x32,gcc-cnn1d,max-cnn1d:64x128,spec-
 
 "$DOABENCH" sweep --trackers "$CLASSICAL,$LEARNED" --tasks sim-grid,sim-pauses,sim-fan \
     --librispeech "$LIBRI" --out results --leaderboard leaderboards --no-frames --quiet --overwrite
-for metric in rmsae_nonsilent rmsae_all; do
-    fig=$([ "$metric" = rmsae_nonsilent ] && echo fig6-rmsae-nonsilent-vs-t60 || echo fig8-rmsae-all-vs-t60)
-    "$DOABENCH" plot rmsae-vs-t60 results/sim-grid__*.json --metric "$metric" --out "docs/img/$fig"
-done
+# Fig. 6 as the paper's: Cross3D and the SRP-PHAT trackers; Fig. 8 adds the other learned models.
+"$DOABENCH" plot rmsae-vs-t60 results/sim-grid__{cross3d_16x32,cross3d_8x16,cross3d_4x8,srp-kalman_32x64,srp-max_*}.json \
+    --metric rmsae_nonsilent --out docs/img/fig6-rmsae-nonsilent-vs-t60
+"$DOABENCH" plot rmsae-vs-t60 results/sim-grid__*.json --metric rmsae_all --out docs/img/fig8-rmsae-all-vs-t60
 # Fig. 7 and the split of the error by silence need per-frame estimates, which the sweep leaves
 # out (--no-frames: 10 MB per 360-episode file otherwise): the grid again, with frames, into
 # runs/ (not committed). Episode 180 opens cell T60 0.9 s, SNR 5 dB (20 episodes per cell, cells
