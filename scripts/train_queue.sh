@@ -46,6 +46,11 @@ fi
 # second phase from epoch 9); their states (1.9 M and 0.1 M parameters) may be committed at every
 # session's end.
 # The paper preset trains from scratch (weights=random), finetune starts from shipped weights.
+# cross3d-16x32-v3 (session 12): the shipped Cross3D 16x32 trained on sim-train v1 (talkers walk on
+# through their pauses), every other model on v3; the same recipe on v3 says whether the v3 data
+# changes the 16x32 model's sim-grid score (issue 12's targets). It exports beside the v1 model
+# (cross3d-16x32-v3.safetensors, used with --tracker-opt weights=FILE) and replaces it as the
+# default only if it scores better (docs/results.md).
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 float32 0 1"
     "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 float32 0 1"
@@ -54,6 +59,7 @@ QUEUE=(
     "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128 float16 2.4 1"
     "seldnet paper seldnet seldnet float32 0 1 --epochs 18 --switch-epoch 9"
     "spec-cnn2d paper spec-cnn2d spec-cnn2d float32 0 2 --epochs 18 --switch-epoch 9"
+    "cross3d:16x32 paper cross3d-16x32-v3 cross3d-16x32-v3 float32 0 1"
 )
 
 deferred=()
