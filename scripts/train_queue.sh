@@ -23,6 +23,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 LIBRI="${DOABENCH_LIBRISPEECH:-../shared/data/LibriSpeech}"
 DOABENCH="${DOABENCH:-.venv/bin/doabench}"
+PYTHON="${PYTHON:-.venv/bin/python}"
 DEADLINE="${QUEUE_DEADLINE:-}"
 if [ -n "$DEADLINE" ] && ! [[ "$DEADLINE" =~ ^[0-9]+$ ]]; then
     echo "QUEUE_DEADLINE must be a Unix time in seconds (e.g. \$(( \$(date +%s) + 165 * 60 ))), got '$DEADLINE'" >&2
@@ -45,6 +46,11 @@ fi
 # (the trainer's default for them) for 18 epochs, 10,530 trajectories (the issue's >= 10,000;
 # second phase from epoch 9); their states (1.9 M and 0.1 M parameters) may be committed at every
 # session's end.
+# A threads field "B/F" means B threads where the CPU trains in bf16 (native bf16: the data workers
+# are the bottleneck) and F where it trains in fp32 (no native bf16, e.g. an AVX2-only AMD EPYC):
+# there Cross3D 16x32's fp32 step costs ~2 CPU-s per trajectory against ~1 for its item, so with one
+# thread the second core idled ~2/3 of the time; 2 threads took the run from 0.467 to 0.63
+# trajectories/s (session 13, docs/training.md).
 # The paper preset trains from scratch (weights=random), finetune starts from shipped weights.
 # cross3d-16x32-v3 (session 12): the shipped Cross3D 16x32 trained on sim-train v1 (talkers walk on
 # through their pauses), every other model on v3; the same recipe on v3 says whether the v3 data
@@ -59,8 +65,17 @@ QUEUE=(
     "max-cnn1d:64x128 paper max-cnn1d-64x128 max-cnn1d-64x128 float16 2.4 1"
     "seldnet paper seldnet seldnet float32 0 1 --epochs 18 --switch-epoch 9"
     "spec-cnn2d paper spec-cnn2d spec-cnn2d float32 0 2 --epochs 18 --switch-epoch 9"
-    "cross3d:16x32 paper cross3d-16x32-v3 cross3d-16x32-v3 float32 0 1"
+    "cross3d:16x32 paper cross3d-16x32-v3 cross3d-16x32-v3 float32 0 1/2"
 )
+
+native_bf16=""  # asked once, only when an entry's threads depend on it (QUEUE_NATIVE_BF16=0/1 overrides)
+resolve_threads() {  # an entry's threads field ("N", or "B/F": see above) -> $threads
+    [[ "$threads" == */* ]] || return 0
+    if [ -z "$native_bf16" ]; then
+        native_bf16="${QUEUE_NATIVE_BF16:-$("$PYTHON" -c 'from doabench.training.trainer import cpu_has_native_bf16; print(int(cpu_has_native_bf16()))')}"
+    fi
+    if [ "$native_bf16" = 1 ]; then threads="${threads%/*}"; else threads="${threads#*/}"; fi
+}
 
 deferred=()
 for entry in "${QUEUE[@]}"; do
@@ -71,6 +86,7 @@ for entry in "${QUEUE[@]}"; do
     if [ -f "$out/exported.txt" ]; then
         continue
     fi
+    resolve_threads
     resume=()
     if [ -f "$out/checkpoint.safetensors" ]; then
         resume=(--resume)

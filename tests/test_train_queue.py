@@ -39,7 +39,7 @@ def tree(tmp_path):
 
 def run_queue(tree: Path, **env_extra: str) -> list[str]:
     env = {**os.environ, "DOABENCH": str(tree / "fake-doabench"), "CALLS": str(tree / "calls.txt"),
-           "DOABENCH_LIBRISPEECH": "/libri"}
+           "DOABENCH_LIBRISPEECH": "/libri", "QUEUE_NATIVE_BF16": "1"}
     env.pop("QUEUE_DEADLINE", None)  # the session's own deadline must not leak into the test
     env.update(env_extra)
     subprocess.run(["bash", str(tree / "scripts" / "train_queue.sh")], check=True, env=env, capture_output=True)
@@ -121,3 +121,18 @@ def test_a_resumed_run_keeps_its_recipe(tree):
     assert len(spec) == 1 and "--resume" in spec[0] and "--epochs" not in spec[0]
     assert "--threads 2" in spec[0]  # threads are not recipe: a resumed run keeps them too
 
+
+
+def test_threads_of_a_bf16_or_fp32_entry_follow_the_cpu(tree):
+    for name in ("cross3d-16x32", "cross3d-8x16", "cross3d-4x8", "gcc-cnn1d", "max-cnn1d-64x128", "seldnet",
+                 "spec-cnn2d"):
+        (tree / "training-runs" / name).mkdir(parents=True)
+        (tree / "training-runs" / name / "exported.txt").write_text("exported\n")
+    # cross3d-16x32-v3's fp32 step is twice its item's cost: where the CPU has no native bf16 the
+    # training process takes both cores' threads, where it has, one (the workers need the other)
+    for native, threads in (("1", 1), ("0", 2)):
+        (tree / "calls.txt").write_text("")
+        shutil.rmtree(tree / "training-runs" / "cross3d-16x32-v3", ignore_errors=True)
+        trains = [c for c in run_queue(tree, QUEUE_NATIVE_BF16=native) if "--export" not in c]
+        assert len(trains) == 1 and "training-runs/cross3d-16x32-v3" in trains[0]
+        assert f"--threads {threads} " in trains[0] + " "
