@@ -48,8 +48,8 @@ fi
 # session's end.
 # A threads field "B/F" means B threads where the CPU trains in bf16 (native bf16: the data workers
 # are the bottleneck) and F where it trains in fp32 (no native bf16, e.g. an AVX2-only AMD EPYC):
-# there Cross3D 16x32's fp32 step costs ~2 CPU-s per trajectory against ~1 for its item, so with one
-# thread the second core idled ~2/3 of the time; 2 threads took the run from 0.467 to 0.63
+# there Cross3D 16x32's fp32 step costs ~2.1 CPU-s per trajectory against ~0.8 for its item, so with
+# one thread the second core idled ~2/3 of the time; 2 threads took the run from 0.467 to 0.65-0.69
 # trajectories/s (session 13, docs/training.md).
 # The paper preset trains from scratch (weights=random), finetune starts from shipped weights.
 # cross3d-16x32-v3 (session 12): the shipped Cross3D 16x32 trained on sim-train v1 (talkers walk on

@@ -122,7 +122,6 @@ def test_a_resumed_run_keeps_its_recipe(tree):
     assert "--threads 2" in spec[0]  # threads are not recipe: a resumed run keeps them too
 
 
-
 def test_threads_of_a_bf16_or_fp32_entry_follow_the_cpu(tree):
     for name in ("cross3d-16x32", "cross3d-8x16", "cross3d-4x8", "gcc-cnn1d", "max-cnn1d-64x128", "seldnet",
                  "spec-cnn2d"):
