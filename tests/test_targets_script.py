@@ -12,18 +12,20 @@ ROOT = Path(__file__).resolve().parents[1]
 CELLS = [(0.0, 5.0), (0.3, 15.0), (0.9, 30.0)]
 
 
-def _write(folder: Path, task: str, stem: str, per_cell: list[float], nonsilent: float | None = None) -> None:
+def _write(folder: Path, task: str, stem: str, per_cell: list[float], nonsilent: float | None = None,
+           version: int | None = None) -> None:
     cells = {f"sim-t60-{t}-snr-{s}": {"t60": t, "snr": s, "rmsae_all": v} for (t, s), v in zip(CELLS, per_cell)}
     pooled = sum(per_cell) / len(per_cell)
     result = {"tracker": {"id": stem.replace("_", ":"), "weights_hash": "ab" * 32},
-              "task": {"id": task, "version": get_task_spec(task).version, "episodes_run": 60}, "cells": cells,
+              "task": {"id": task, "version": version if version is not None else get_task_spec(task).version,
+                       "episodes_run": 60}, "cells": cells,
               "summary": {"rmsae_all": pooled, "rmsae_nonsilent": nonsilent or pooled}}
     (folder / f"{task}__{stem}.json").write_text(json.dumps(result))
 
 
-def _run(folder: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(ROOT / "scripts" / "cross3d_targets.py"), str(folder)],
-                          capture_output=True, text=True, timeout=60)
+def _run(folder: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "cross3d_targets.py"), str(folder), *args],
+                          capture_output=True, text=True, timeout=60, env=env)
 
 
 def _grid(folder: Path, model: list[float]) -> None:
@@ -73,6 +75,31 @@ def test_a_lost_cell_gets_its_paired_difference(tmp_path):
     assert "sim-t60-0.9-snr-30.0, cross3d:16x32 - srp-kalman:32x64: difference +1.00 deg [+1.00, +1.00] " \
            "(paired bootstrap over 2 episodes: significant at 95 %)" in out, out
     assert "cross3d:4x8 - max-cnn1d:64x128: difference -0.68 deg" in out and "a tie at 95 %" in out, out
+    # the count of cells won significantly covers the comparisons with per-episode rows only
+    assert "significantly lower (95 %) than srp-kalman:32x64 in 0 of the 1 cells compared" in out, out
+    assert "than srp-max:16x32" not in out, out
+
+
+def test_grid_option_checks_the_replica_grid_only(tmp_path):
+    """``--grid sim-grid-replica`` reads that task's files (registered from scripts/replica-tasks)
+    and leaves sim-pauses and sim-fan out; an unknown grid task is a one-line error, exit 2."""
+    import os
+
+    from doabench.envs.spec import load_spec_file
+
+    replica = ROOT / "scripts" / "replica-tasks" / "sim-grid-replica.toml"
+    # read, not registered: this process's task registry stays as it is
+    version = next(s.version for s in load_spec_file(replica) if s.id == "sim-grid-replica")
+    for stem, per_cell in (("cross3d_16x32", [6.0, 13.0, 14.0]), ("srp-max_16x32", [5.0, 12.0, 20.0]),
+                           ("srp-kalman_32x64", [4.0, 9.0, 15.0]), ("cross3d_4x8", [9.0] * 3),
+                           ("max-cnn1d_64x128", [12.0] * 3)):
+        _write(tmp_path, "sim-grid-replica", stem, per_cell, version=version)
+    env = {**os.environ, "DOABENCH_TASK_PATH": str(replica.parent)}
+    r = _run(tmp_path, "--grid", "sim-grid-replica", env=env)
+    assert r.returncode == 1 and "pooled sim-grid-replica RMSAE 11.00 > 10" in r.stdout, r.stdout + r.stderr
+    assert "sim-pauses" not in r.stdout and "sim-fan" not in r.stdout
+    bad = _run(tmp_path, "--grid", "sim-grid-nope", env=env)
+    assert bad.returncode == 2 and "unknown task 'sim-grid-nope'" in bad.stderr and "Traceback" not in bad.stderr
 
 
 def test_pause_hold_bound(tmp_path):
