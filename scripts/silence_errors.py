@@ -4,8 +4,9 @@
 With ``--tracker``: scores a trainable tracker's network on the fixed validation set of
 ``doabench train`` (the 30 held-out-speaker trajectories of the training task, built in
 ``runs/cache`` if missing), the same frames the training log's validation columns pool; the
-network runs raw (``hold=off``). With ``--results FILE``: the per-frame estimates of a results file
-written without ``--no-frames`` (any tracker, any task). Prints the RMSAE and share of the squared
+network runs raw (``hold=off``). With ``--results FILE [FILE ...]``: the per-frame estimates of
+results files written without ``--no-frames`` (any tracker, any task; several files pool their
+frames, e.g. one run per grid cell). Prints the RMSAE and share of the squared
 error per number of frames since the last voice-active frame (and before the first one), then the
 all-frames RMSAE when the estimate is held after ``N`` silent frames (``doabench.hold_in_silences``,
 the rule the learned trackers' ``hold`` option applies) for each ``--holds`` value.
@@ -36,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--tracker", help="trainable tracker scored on the training task's validation set")
-    source.add_argument("--results", type=Path, help="results file with per-frame estimates")
+    source.add_argument("--results", type=Path, nargs="+", help="results files with per-frame estimates (pooled)")
     p.add_argument("--weights", help="weights file (default: the shipped one)")
     p.add_argument("--task", default="sim-train")
     p.add_argument("--librispeech")
@@ -82,15 +83,19 @@ def _unit(a) -> np.ndarray:
     return a / np.linalg.norm(a, axis=-1, keepdims=True)
 
 
-def _from_results(path: Path) -> tuple[str, list, list, list]:
+def _from_results(paths: list[Path]) -> tuple[str, list, list, list]:
     import json
 
-    r = json.loads(path.read_text())
-    if not r.get("frames"):
-        raise SystemExit(f"error: {path} has no per-frame estimates (written with --no-frames?)")
-    frames = r["frames"]
-    return (f"{r['tracker']['id']} on {r['task']['id']} v{r['task']['version']}", [_unit(f["estimates"]) for f in frames],
-            [_unit(f["truth"]) for f in frames], [np.asarray(f["vad"], bool) for f in frames])
+    names, frames = [], []
+    for path in paths:
+        r = json.loads(path.read_text())
+        if not r.get("frames"):
+            raise SystemExit(f"error: {path} has no per-frame estimates (written with --no-frames?)")
+        frames += r["frames"]
+        names.append(f"{r['tracker']['id']} on {r['task']['id']} v{r['task']['version']}")
+    name = names[0] if len(names) == 1 else f"{names[0]} and {len(names) - 1} more results files"
+    return (name, [_unit(f["estimates"]) for f in frames], [_unit(f["truth"]) for f in frames],
+            [np.asarray(f["vad"], bool) for f in frames])
 
 
 def _from_validation(args: argparse.Namespace) -> tuple[list, list, list]:

@@ -149,3 +149,8 @@ def test_silence_errors_splits_a_results_file_by_silence(tmp_path):
     assert "| 1-2 | 2 | 90.00 | 0.67 |" in lines
     # held after one silent frame: frames 2 and 3 repeat frame 1's estimate (up, error 0)
     assert lines[-1] == "hold after 1 silent frames: all 45.00 deg"
+    # several files pool their frames: twice the same file, twice the frames, the same RMSAE
+    out = subprocess.run([sys.executable, str(script), "--results", str(path), str(path), "--holds", "1"],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "t on x v1 and 1 more results files (2 trajectories, 8 frames): all 77.94 deg" in out.stdout, out.stdout

@@ -562,7 +562,11 @@ def test_resume_precision_keeps_the_run_unless_told_or_unsupported(monkeypatch):
     cpu = torch.device("cpu")
     monkeypatch.setattr(trainer_module, "cpu_has_native_bf16", lambda: True)
     assert resume_precision("bf16", "auto", cpu) == ("bf16", None)
-    assert resume_precision("fp32", "auto", cpu) == ("fp32", None)  # auto does not upgrade a run either
+    assert resume_precision("fp32", "auto", cpu) == ("fp32", None)  # auto does not upgrade an fp32 run
+    # a bf16 run that went on in fp32 on an AVX2-only CPU goes back to bf16 where bf16 is native
+    precision, note = resume_precision("fp32", "auto", cpu, started_in="bf16")
+    assert precision == "bf16" and "continues in bf16" in note
+    assert resume_precision("fp32", "auto", cpu, started_in="fp32") == ("fp32", None)
     assert resume_precision(None, "auto", cpu) == ("bf16", None)
     precision, note = resume_precision("bf16", "fp32", cpu)
     assert precision == "fp32" and "--precision" in note
@@ -570,5 +574,6 @@ def test_resume_precision_keeps_the_run_unless_told_or_unsupported(monkeypatch):
     assert resume_precision(None, "auto", cpu) == ("fp32", None)
     assert resume_precision("bf16", "bf16", cpu) == ("bf16", None)  # forced: kept, however slow
     assert resume_precision("bf16", "auto", cpu)[0] == "fp32"
+    assert resume_precision("fp32", "auto", cpu, started_in="bf16") == ("fp32", None)  # still no native bf16
     with pytest.raises(doabench.DoabenchError, match="precision"):
         resume_precision("bf16", "fp16", cpu)

@@ -88,15 +88,19 @@ def resolve_precision(precision: str, device: torch.device) -> str:
     return precision
 
 
-def resume_precision(saved: str | None, requested: str, device: torch.device) -> tuple[str, str | None]:
+def resume_precision(saved: str | None, requested: str, device: torch.device,
+                     started_in: str | None = None) -> tuple[str, str | None]:
     """The precision a run trains in, and a note to print when it is not the run's saved one.
 
-    A new run (``saved`` None) resolves ``requested``. A resumed run keeps its saved precision,
-    except that an explicit ``--precision`` wins (autocast only rounds activations: master weights,
-    loss and Adam state stay float32, so the checkpoint is the same either way) and that ``auto``
-    falls back to fp32 for a bf16 run resumed on a CPU without native bf16, where autocast is
-    emulated: 12.8x slower than float32 for a Cross3D 4x8 step on an AVX2-only AMD EPYC
-    (docs/training.md)."""
+    A new run (``saved`` None) resolves ``requested``. A resumed run keeps its precision, except
+    that an explicit ``--precision`` wins (autocast only rounds activations: master weights, loss
+    and Adam state stay float32, so the checkpoint is the same either way) and that ``auto`` falls
+    back to fp32 for a bf16 run resumed on a CPU without native bf16, where autocast is emulated:
+    12.8x slower than float32 for a Cross3D 4x8 step on an AVX2-only AMD EPYC (docs/training.md).
+    That fallback is the machine's, not the run's: ``started_in`` (the precision of the run's first
+    epoch) says which precision the run is, so a bf16 run that went on in fp32 on such a CPU goes
+    back to bf16 on the next one that has it (cross3d-16x32-v3 stayed in fp32 for a whole bf16
+    session before this rule, 4x slower per epoch)."""
     if saved is None:
         return resolve_precision(requested, device), None
     if requested != "auto":
@@ -104,10 +108,17 @@ def resume_precision(saved: str | None, requested: str, device: torch.device) ->
         if precision == saved:
             return precision, None
         return precision, f"note: the run trained in {saved} so far; it continues in {precision} (--precision)"
-    if saved == "bf16" and device.type == "cpu" and not cpu_has_native_bf16():
+    if "bf16" not in (saved, started_in):
+        return saved, None
+    if device.type == "cpu" and not cpu_has_native_bf16():
+        if saved == "fp32":
+            return "fp32", None
         return "fp32", ("note: the run trained in bf16 so far, but this CPU has no native bf16 (autocast would be "
                         "emulated, about 13x slower): it continues in fp32 (--precision bf16 forces bf16)")
-    return saved, None
+    if saved != "bf16":
+        return "bf16", ("note: the run started in bf16 and went on in fp32 on a CPU without native bf16; this "
+                        "device has it, so it continues in bf16 (--precision fp32 keeps fp32)")
+    return "bf16", None
 
 
 def available_cores() -> int:
@@ -177,7 +188,9 @@ class Trainer:
         if self.device.type == "cuda" and not torch.cuda.is_available():
             raise ConfigError("--device cuda requested but torch has no CUDA device here")
         saved_precision = None if self.saved is None else self.saved.get("precision")
-        self.precision, note = resume_precision(saved_precision, options.precision, self.device)
+        first_epoch = (self.saved or {}).get("history") or [{}]
+        self.precision, note = resume_precision(saved_precision, options.precision, self.device,
+                                                started_in=first_epoch[0].get("precision"))
         if note:
             log(note)
         torch.manual_seed(recipe.seed)  # network initialisation
