@@ -49,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     print("| results file | tracker RMSAE all | tracker RMSAE non-silent | hold-the-truth oracle RMSAE all |")
     print("|---|---|---|---|")
+    rms = lambda parts: float(np.sqrt(np.mean(np.concatenate(parts) ** 2)))  # noqa: E731
+    pooled: list[list[np.ndarray]] = [[], [], []]  # over every file: errors, voice-active errors, oracle
     for path in args.results:
         try:
             r = json.loads(path.read_text())
@@ -65,8 +67,12 @@ def main(argv: list[str] | None = None) -> int:
             errs.append(e)
             voiced.append(e[vad])
             oracle.append(hold_last_voiced(truth, vad))
-        rms = lambda parts: float(np.sqrt(np.mean(np.concatenate(parts) ** 2)))  # noqa: E731
         print(f"| {path.name} | {rms(errs):.2f} | {rms(voiced):.2f} | {rms(oracle):.2f} |")
+        for whole, part in zip(pooled, (errs, voiced, oracle)):
+            whole.extend(part)
+    if len(args.results) > 1:  # e.g. the cells of a grid, one file each: pooled over their frames
+        errs, voiced, oracle = pooled
+        print(f"| all {len(args.results)} files, pooled | {rms(errs):.2f} | {rms(voiced):.2f} | {rms(oracle):.2f} |")
     return 0
 
 

@@ -115,6 +115,14 @@ def test_pause_hold_bound(tmp_path):
     row = out.stdout.strip().splitlines()[-1].split("|")
     # tracker: errors 0, 0, 90, 0; oracle: 90 (nothing heard yet), 0, 90 (up -> east), 0
     assert [float(x) for x in row[2:5]] == [45.0, 0.0, 63.64]
+    # two files pool over their frames: the second one (a perfect tracker, voice from frame 1 on)
+    still = {"truth": [up, up], "estimates": [up, up], "vad": [True, True]}
+    second = tmp_path / "s.json"
+    second.write_text(json.dumps({"frames": [still]}))
+    out = subprocess.run([sys.executable, str(script), str(path), str(second)], capture_output=True, text=True)
+    row = out.stdout.strip().splitlines()[-1].split("|")
+    assert row[1].strip() == "all 2 files, pooled"
+    assert [float(x) for x in row[2:5]] == [36.74, 0.0, 51.96]  # sqrt(8100/6), 0, sqrt(16200/6)
     path.write_text(json.dumps({"frames": None}))
     out = subprocess.run([sys.executable, str(script), str(path)], capture_output=True, text=True)
     assert out.returncode == 2 and "no per-frame estimates" in out.stderr
