@@ -8,7 +8,8 @@ Targets (issue 12, sections 4 and 5):
 * sim-pauses and sim-fan: ``cross3d:16x32`` all-frames RMSAE <= 1.5 x its non-silent RMSAE and
   <= 15 deg.
 
-Usage: ``python scripts/cross3d_targets.py [RESULTS_FOLDER] [--grid TASK]`` (default ``results/``).
+Usage: ``python scripts/cross3d_targets.py [RESULTS_FOLDER] [--grid TASK]`` (default ``results/``);
+``--compare A.json B.json`` prints A - B paired over their episodes, pooled and per cell.
 ``--grid TASK`` checks the grid targets on another grid task of sim-grid's cells (the replica in
 ``scripts/replica-tasks``, registered through ``DOABENCH_TASK_PATH``) and skips sim-pauses and
 sim-fan. A missing
@@ -132,7 +133,32 @@ def silence_targets(folder: Path, lines: list[str]) -> list[str]:
     return missed
 
 
+def compare(a_path: Path, b_path: Path) -> list[str]:
+    """Two results files of the same task (e.g. two weights of one tracker): each one's pooled
+    RMSAE, then :func:`paired` over all episodes and per cell."""
+    a, b = (json.loads(p.read_text()) for p in (a_path, b_path))
+    lines = [f"{p.name}: all {r['summary']['rmsae_all']:.2f} deg, non-silent {r['summary']['rmsae_nonsilent']:.2f} deg"
+             for p, r in ((a_path, a), (b_path, b))]
+    if not (found := paired(a, b)):
+        return lines + ["the two files have no common episodes to pair"]
+    lines.append(f"{a_path.name} - {b_path.name}: {found}")
+    cells = sorted({e["task"] for e in a["episodes"]})
+    if len(cells) > 1:  # a grid: per cell too
+        lines += [f"  {cell}: {paired(a, b, cell)}" for cell in cells]
+    return lines
+
+
 def main(argv: list[str]) -> int:
+    if argv[:1] == ["--compare"]:
+        if len(argv) != 3:
+            print("cross3d_targets.py: --compare needs two results files", file=sys.stderr)
+            return 2
+        try:
+            print("\n".join(compare(Path(argv[1]), Path(argv[2]))))
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"cross3d_targets.py: cannot compare {argv[1]} and {argv[2]}: {exc}", file=sys.stderr)
+            return 2
+        return 0
     grid = "sim-grid"
     if "--grid" in argv:
         at = argv.index("--grid")

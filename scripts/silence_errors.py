@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     rows += [(f"{lo}-{hi - 1}" if hi else f"{lo} and more", (since >= lo) & ((since < hi) if hi else True))
              for lo, hi in BUCKETS]
     rows.append(("before the first voice", since < 0))
+    rows.append(("after the first voice (all but the row above)", since >= 0))
     for label, mask in rows:
         print(f"| {label} | {int(mask.sum()):,} | {rms(e[mask]):.2f} | {np.sum(e[mask] ** 2) / total:.2f} |")
     for hold in (int(h) for h in args.holds.split(",") if h.strip()):

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from doabench.envs.registry import get_task_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -131,8 +133,6 @@ def test_pause_hold_bound(tmp_path):
 def test_silence_errors_counts_frames_since_voice():
     import importlib.util
 
-    import numpy as np
-
     path = Path(__file__).resolve().parents[1] / "scripts" / "silence_errors.py"
     spec = importlib.util.spec_from_file_location("silence_errors", path)
     module = importlib.util.module_from_spec(spec)
@@ -155,6 +155,7 @@ def test_silence_errors_splits_a_results_file_by_silence(tmp_path):
     assert "all 77.94 deg, non-silent 0.00 deg" in lines[0]
     assert "| before the first voice | 1 | 90.00 | 0.33 |" in lines
     assert "| 1-2 | 2 | 90.00 | 0.67 |" in lines
+    assert "| after the first voice (all but the row above) | 3 | 73.48 | 0.67 |" in lines  # 0, 90, 90
     # held after one silent frame: frames 2 and 3 repeat frame 1's estimate (up, error 0)
     assert lines[-1] == "hold after 1 silent frames: all 45.00 deg"
     # several files pool their frames: twice the same file, twice the frames, the same RMSAE
@@ -162,3 +163,25 @@ def test_silence_errors_splits_a_results_file_by_silence(tmp_path):
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert "t on x v1 and 1 more results files (2 trajectories, 8 frames): all 77.94 deg" in out.stdout, out.stdout
+
+
+def test_compare_pairs_two_runs_over_their_episodes(tmp_path):
+    """--compare: A - B over the episodes both ran, pooled and per cell; a bad file is one line, exit 2."""
+    def write(name: str, errors: list[float]) -> Path:
+        episodes = [{"task": f"cell-{i % 2}", "seed": i, "rmsae_all": e, "n_frames": 10} for i, e in enumerate(errors)]
+        path = tmp_path / name
+        path.write_text(json.dumps({"summary": {"rmsae_all": float(np.sqrt(np.mean(np.square(errors)))),
+                                                "rmsae_nonsilent": 1.0}, "episodes": episodes}))
+        return path
+
+    base = [4.0, 6.0, 5.0, 7.0, 6.0, 8.0, 5.0, 9.0]
+    a, b = write("a.json", [e + 2.0 for e in base]), write("b.json", base)
+    script = ROOT / "scripts" / "cross3d_targets.py"
+    out = subprocess.run([sys.executable, str(script), "--compare", str(a), str(b)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[2].startswith("a.json - b.json: difference +") and "significant at 95 %" in lines[2], lines
+    assert [line.split(":")[0].strip() for line in lines[3:]] == ["cell-0", "cell-1"]
+    bad = subprocess.run([sys.executable, str(script), "--compare", str(a), str(tmp_path / "none.json")],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "cannot compare" in bad.stderr and "Traceback" not in bad.stderr

@@ -99,8 +99,8 @@ def resume_precision(saved: str | None, requested: str, device: torch.device,
     12.8x slower than float32 for a Cross3D 4x8 step on an AVX2-only AMD EPYC (docs/training.md).
     That fallback is the machine's, not the run's: ``started_in`` (the precision of the run's first
     epoch) says which precision the run is, so a bf16 run that went on in fp32 on such a CPU goes
-    back to bf16 on the next one that has it (cross3d-16x32-v3 stayed in fp32 for a whole bf16
-    session before this rule, 4x slower per epoch)."""
+    back to bf16 on the next one that has it (before this rule cross3d-16x32-v3, a bf16 run with
+    17 fp32 epochs from AVX2 sessions, resumed in fp32 on an AVX-512 BF16 CPU)."""
     if saved is None:
         return resolve_precision(requested, device), None
     if requested != "auto":
