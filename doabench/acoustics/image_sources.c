@@ -39,10 +39,13 @@ static inline db_v16 db_load(const float *p) {
 
 static inline void db_store(float *p, db_v16 v) { memcpy(p, &v, sizeof v); }
 
-int doabench_image_kernel_version(void) { return 4; }
+int doabench_image_kernel_version(void) { return 5; }
 
 /* src (P, 3), mic (M, 3), sign (I, 3), offset (I, 3), gain (I): float32, contiguous, room
  * coordinates relative to a common origin (the array centre).
+ * mic_point_stride: floats between the microphones of consecutive points; 0 when every point
+ * shares one array (mic is (M, 3)), 3 M for a moving array (mic is (P, M, 3): point p is heard by
+ * the microphones at mic + p * mic_point_stride). Arithmetic per element is the same either way.
  * table (DB_OVER, DB_TAPS): table[ph][n] = windowed_sinc(n - (DB_HALF - 1) - ph / DB_OVER).
  * out: row (p, m) starts at out + (p * M + m) * stride (stride >= n_out); its first n_out samples
  * are written (zeroed first), the rest is left alone.
@@ -59,7 +62,7 @@ int doabench_render_images(int64_t P, int64_t M, int64_t I, const float *restric
                            const float *restrict mic, const float *restrict sign,
                            const float *restrict offset, const float *restrict gain, float reach2,
                            float scale, const float *restrict table, float *restrict out,
-                           int64_t n_out, int64_t stride, float *restrict work) {
+                           int64_t n_out, int64_t stride, float *restrict work, int64_t mic_point_stride) {
     float *restrict ix = work, *restrict iy = work + (I + DB_BLOCK), *restrict iz = work + 2 * (I + DB_BLOCK);
     float *restrict ig = work + 3 * (I + DB_BLOCK);
     float w[DB_BLOCK];
@@ -81,8 +84,9 @@ int doabench_render_images(int64_t P, int64_t M, int64_t I, const float *restric
             ig[K] = gain[i];
             K += x * x + y * y + z * z <= reach2;
         }
+        const float *pmic = mic + p * mic_point_stride;
         for (int64_t m = 0; m < M; m++) {
-            const float mx = mic[3 * m], my = mic[3 * m + 1], mz = mic[3 * m + 2];
+            const float mx = pmic[3 * m], my = pmic[3 * m + 1], mz = pmic[3 * m + 2];
             float *row = out + (p * M + m) * stride;
             for (int64_t k0 = 0; k0 < K; k0 += DB_BLOCK) {
                 const int64_t nk = K - k0 < DB_BLOCK ? K - k0 : DB_BLOCK;

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 SOURCE = "image_sources.c"
-KERNEL_VERSION = 4  # doabench_image_kernel_version() of the source
+KERNEL_VERSION = 5  # doabench_image_kernel_version() of the source
 FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-fno-math-errno", "-shared", "-fPIC"]
 _HALF, _OVER = 16, 128  # SINC_HALF and KERNEL_PHASES (rir.py) as compiled into the C source
 _TAPS = 32  # samples per image in the C source (2 * SINC_HALF)
@@ -113,7 +113,7 @@ def _load():
     i64, f32, ptr = ctypes.c_int64, ctypes.c_float, ctypes.c_void_p
     lib.doabench_render_images.restype = ctypes.c_int
     lib.doabench_render_images.argtypes = [i64, i64, i64, ptr, ptr, ptr, ptr, ptr, f32, f32, ptr, ptr, i64,
-                                           i64, ptr]
+                                           i64, ptr, i64]
     return lib, ""
 
 
@@ -147,15 +147,19 @@ def tap_table(windowed_sinc, half: int, over: int) -> np.ndarray:
 
 def render(lib, src: np.ndarray, mic: np.ndarray, sign: np.ndarray, offset: np.ndarray, gain: np.ndarray,
            reach2: float, scale: float, table: np.ndarray, out: np.ndarray, n_out: int) -> None:
-    """Call the kernel. Arrays float32 C-contiguous: ``src`` (P, 3), ``mic`` (M, 3), ``sign`` and
-    ``offset`` (I, 3), ``gain`` (I,), ``table`` (:func:`tap_table`); ``out`` (P, M, stride) with
-    contiguous rows (its first ``n_out`` samples per row are written)."""
-    P, M, I = src.shape[0], mic.shape[0], gain.shape[0]
+    """Call the kernel. Arrays float32 C-contiguous: ``src`` (P, 3), ``mic`` (M, 3) shared by every
+    point or (P, M, 3) per point (a moving array), ``sign`` and ``offset`` (I, 3), ``gain`` (I,),
+    ``table`` (:func:`tap_table`); ``out`` (P, M, stride) with contiguous rows (its first ``n_out``
+    samples per row are written)."""
+    per_point = mic.ndim == 3
+    P, M, I = src.shape[0], mic.shape[-2], gain.shape[0]
+    if per_point and mic.shape[0] != P:
+        raise ValueError("per-point microphones must have one (M, 3) set per source point")
     arrays = (src, mic, sign, offset, gain, table)
     # Real checks, not asserts (python -O strips those): a wrong layout would write out of bounds.
     if not all(a.dtype == np.float32 and a.flags.c_contiguous for a in arrays):
         raise ValueError("image kernel inputs must be C-contiguous float32 arrays")
-    if (src.shape[1:], mic.shape[1:], sign.shape, offset.shape, table.shape) != (
+    if (src.shape[1:], mic.shape[-1:], sign.shape, offset.shape, table.shape) != (
             (3,), (3,), (I, 3), (I, 3), (_OVER, _TAPS)):
         raise ValueError("image kernel inputs have the wrong shapes")
     if not (out.dtype == np.float32 and out.ndim == 3 and out.shape[:2] == (P, M) and out.shape[2] >= n_out >= 0
@@ -163,4 +167,5 @@ def render(lib, src: np.ndarray, mic: np.ndarray, sign: np.ndarray, offset: np.n
         raise ValueError("image kernel output must be float32 (P, M, >= n_out) with contiguous rows")
     work = np.empty(4 * (I + _BLOCK), dtype=np.float32)
     lib.doabench_render_images(P, M, I, *(a.ctypes.data for a in arrays[:5]), float(reach2), float(scale),
-                               table.ctypes.data, out.ctypes.data, n_out, out.shape[2], work.ctypes.data)
+                               table.ctypes.data, out.ctypes.data, n_out, out.shape[2], work.ctypes.data,
+                               3 * M if per_point else 0)

@@ -94,7 +94,8 @@ def direct_path_power(sources: np.ndarray, mics: np.ndarray, speech: np.ndarray,
                       fs: int) -> tuple[float, np.ndarray | None]:
     """:func:`reference_power` of the direct path, analytically (see the module docstring).
 
-    ``sources`` ``(S, 3)`` trajectory points, ``mics`` ``(M, 3)`` (room coordinates), ``speech``
+    ``sources`` ``(S, 3)`` trajectory points, ``mics`` ``(M, 3)`` or ``(S, M, 3)`` for a moving
+    array (room coordinates), ``speech``
     ``(L,)``: sample ``n`` of segment ``i`` reaches microphone ``m`` with gain ``1 / (4 pi r_im)``
     after ``r_im / c``; its power averaged over microphones is ``mean_m g_im**2 * speech[n]**2``,
     placed at ``n`` plus the mean direct delay.
@@ -102,7 +103,8 @@ def direct_path_power(sources: np.ndarray, mics: np.ndarray, speech: np.ndarray,
     from doabench.acoustics.trajectories import segment_of_samples
     from doabench.geometry import SPEED_OF_SOUND
 
-    dist = np.linalg.norm(np.asarray(sources, np.float64)[:, None] - np.asarray(mics, np.float64)[None], axis=-1)
+    mics = np.asarray(mics, np.float64)
+    dist = np.linalg.norm(np.asarray(sources, np.float64)[:, None] - (mics if mics.ndim == 3 else mics[None]), axis=-1)
     gain_sq = np.mean((1.0 / (4.0 * np.pi * dist)) ** 2, axis=1)  # (S,)
     n = len(speech)
     power = gain_sq[segment_of_samples(n, len(gain_sq))] * np.square(np.asarray(speech, np.float64))

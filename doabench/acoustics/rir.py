@@ -267,7 +267,10 @@ def rir_layout(room: Room | None, max_direct_delay: float, fs: int) -> RirLayout
 
 
 def direct_delays(sources: torch.Tensor, mics: torch.Tensor, fs: int) -> torch.Tensor:
-    """Direct-path delays ``(S, M)`` in samples."""
+    """Direct-path delays ``(S, M)`` in samples; ``mics`` ``(M, 3)`` shared by every point or
+    ``(S, M, 3)``, the microphones that hear point ``s`` (a moving array)."""
+    if mics.dim() == 3:
+        return (sources.double()[:, None] - mics.double()).norm(dim=-1) * (fs / SPEED_OF_SOUND)
     return torch.cdist(sources.double(), mics.double()) * (fs / SPEED_OF_SOUND)
 
 
@@ -286,7 +289,8 @@ def render_images(
 ) -> torch.Tensor:
     """Band-limited image-source responses, ``(P, M, n_out)`` float32 on the sources' device.
 
-    ``sources`` ``(P, 3)`` and ``mics`` ``(M, 3)`` float tensors (room coordinates, metres). Images
+    ``sources`` ``(P, 3)`` and ``mics`` ``(M, 3)`` float tensors (room coordinates, metres), or
+    ``mics`` ``(P, M, 3)``: the microphones that hear each point (a moving array). Images
     that cannot reach sample ``n_out`` are skipped. Memory grows with ``P``; callers chunk.
     ``out``: a contiguous ``(P, M, >= n_out)`` float32 tensor to write the samples into (its
     first ``n_out`` samples; returned). ``workspace``: a list holding a reusable scratch tensor
@@ -294,7 +298,8 @@ def render_images(
     more in page faults than zeroing a reused one).
     """
     device = sources.device
-    P, M = sources.shape[0], mics.shape[0]
+    per_point = mics.dim() == 3
+    P, M = sources.shape[0], mics.shape[-2]
     if out is None:
         out = torch.empty(P, M, n_out, dtype=torch.float32, device=device)
     if P == 0 or n_out == 0:
@@ -304,10 +309,11 @@ def render_images(
     f32 = dict(dtype=torch.float32, device=device)
 
     # Coordinates relative to the array centre keep |p|^2 - 2 p.m + |m|^2 free of cancellation.
-    centre = mics.to(torch.float64).mean(0)
+    # (A moving array: the centre of all its positions, so a radius that covers every pose.)
+    centre = mics.to(torch.float64).reshape(-1, 3).mean(0)
     mic = (mics.to(torch.float64) - centre).to(torch.float32)
     src = sources.to(torch.float32)
-    arr_radius = float(mic.norm(dim=1).max())
+    arr_radius = float(mic.norm(dim=-1).max())
     reach = (n_out + half) / to_samples + arr_radius
     lib = native.library() if device.type == "cpu" else None
     if lib is not None and _rows_contiguous(out):  # the compiled kernel (native.py): one fused pass
@@ -349,7 +355,7 @@ def render_images(
     index_dtype = torch.int32 if size < 2**31 else torch.int64
     row_start = (p_idx * (M * width) + (half + 1) * over).to(index_dtype)  # (K,) (point, mic 0)
     mic_start = (torch.arange(M, device=device)[:, None] * width).to(index_dtype)  # (M, 1)
-    mic_sq = (mic * mic).sum(1, keepdim=True)
+    mic_sq = None if per_point else (mic * mic).sum(1, keepdim=True)
     index_buf = torch.empty(M * max(1, work_elements(device, _SLICE_ELEMENTS, _SLICE_ELEMENTS_CUDA) // M),
                             dtype=torch.int64, device=device)
 
@@ -362,9 +368,13 @@ def render_images(
             k1 = min(pos.shape[1], k0 + n_slice)
             # distances (M, k) as |p|^2 - 2 p.m + |m|^2 (M x k layout: consecutive writes stay
             # in one (point, mic) row)
-            dist = mic_sq + pos_sq[None, k0:k1]
-            for a in range(3):
-                dist.addcmul_(mic[:, a, None], pos[None, a, k0:k1], value=-2.0)
+            if per_point:  # each image's own point's microphones: (k, M, 3) -> (M, k) distances
+                near = mic.index_select(0, p_idx[k0:k1])
+                dist = (pos[:, k0:k1].T[:, None, :] - near).square_().sum(-1).T.contiguous()
+            else:
+                dist = mic_sq + pos_sq[None, k0:k1]
+                for a in range(3):
+                    dist.addcmul_(mic[:, a, None], pos[None, a, k0:k1], value=-2.0)
             dist.clamp_(min=1e-12).sqrt_()
             w0 = amp[k0:k1] / dist
             t = dist.mul_(to_samples * over)  # arrival on the fine grid, >= 0
@@ -548,6 +558,12 @@ def _points_per_chunk(
     return max(1, int(work_elements(device, _CHUNK_ELEMENTS, _CHUNK_ELEMENTS_CUDA) // per_point))
 
 
+def _mics_of(mics: torch.Tensor, p0: int, p1: int) -> torch.Tensor:
+    """The microphones of points ``[p0, p1)``: all of a shared ``(M, 3)`` array, or that slice of
+    per-point ``(S, M, 3)`` positions."""
+    return mics[p0:p1] if mics.dim() == 3 else mics
+
+
 def plan(room: Room | None, sources: torch.Tensor, mics: torch.Tensor, fs: int) -> tuple[RirLayout, torch.Tensor]:
     """The layout of a batch of RIRs and its direct-path delays ``(S, M)`` in samples."""
     delays = direct_delays(sources, mics, fs)
@@ -575,7 +591,7 @@ def image_source_parts(
     layout, delays = plan(room, sources, mics, fs)
     horizon_m = (layout.n_early + SINC_HALF) / fs * SPEED_OF_SOUND
     images = enumerate_images(room, horizon_m) if room.t60 > 0 else direct_images()
-    S, M = sources.shape[0], mics.shape[0]
+    S, M = sources.shape[0], mics.shape[-2]
     width = layout.n_early if width is None else max(int(width), layout.n_early)
     early = torch.empty(S, M, width, dtype=torch.float32, device=sources.device)
     fit = room.t60 > 0 and layout.n_taps > layout.n_diff
@@ -584,7 +600,8 @@ def image_source_parts(
     scratch: list = []
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
-        chunk = render_images(images, sources[p0:p1], mics, fs, layout.n_early, out=early[p0:p1], workspace=scratch)
+        chunk = render_images(images, sources[p0:p1], _mics_of(mics, p0, p1), fs, layout.n_early, out=early[p0:p1],
+                              workspace=scratch)
         if levels is not None:
             levels[p0:p1] = tail_level(chunk, room, fs, layout, delays[p0:p1])
     if width > layout.n_early:
@@ -611,11 +628,12 @@ def direct_rirs(sources: torch.Tensor, mics: torch.Tensor, fs: int) -> torch.Ten
     delays = direct_delays(sources, mics, fs)
     layout = rir_layout(None, float(delays.max()) if delays.numel() else 0.0, fs)
     images = direct_images()
-    S, M = sources.shape[0], mics.shape[0]
+    S, M = sources.shape[0], mics.shape[-2]
     out = torch.empty(S, M, layout.n_taps, dtype=torch.float32, device=sources.device)
     step = _points_per_chunk(None, M, 1, layout, fs, device=sources.device)
     scratch: list = []
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
-        render_images(images, sources[p0:p1], mics, fs, layout.n_taps, out=out[p0:p1], workspace=scratch)
+        render_images(images, sources[p0:p1], _mics_of(mics, p0, p1), fs, layout.n_taps, out=out[p0:p1],
+                      workspace=scratch)
     return out

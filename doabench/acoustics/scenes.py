@@ -22,13 +22,14 @@ import numpy as np
 
 from doabench.acoustics.room import Room, check_inside
 from doabench.acoustics.trajectories import sample_directions, sample_trajectory, segment_bounds
+from doabench.acoustics.walks import check_rotations, rotation_matrix, sample_array_motion, sample_walk
 from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError
 
 # Independent random streams of a scene seed, in SeedSequence spawn order. Append, never reorder:
 # the order is part of what makes a seed reproduce the same scene.
 STREAMS = ("room", "array", "trajectory", "speech", "noise", "simulator", "directional", "directional_signal",
-           "pauses")
+           "pauses", "walk", "array_pose")
 NOISE_KINDS = ("pink", "brown", "lowpass")
 
 
@@ -48,7 +49,16 @@ Range = tuple[float, float]
 Vec3 = tuple[float, float, float]
 
 # Field groups for validation and dict conversion.
-_RANGES = ("t60", "snr", "abs_weights", "directional_noise_snr", "pause_s", "pause_count")
+_RANGES = ("t60", "snr", "abs_weights", "directional_noise_snr", "pause_s", "pause_count", "walk_speed",
+           "walk_distance", "walk_height", "walk_leg_s", "array_yaw", "array_pitch", "array_roll", "array_speed")
+# Fields beyond the paper that a distribution's dict names only when they differ from these
+# defaults, so the dicts (and results) of the tasks that predate them stay as they were.
+_OPTIONAL_DEFAULTS: dict[str, Any] = {
+    "pause_after_s": 0.0, "pause_hold": False, "walk_p": 0.0, "walk_speed": [0.3, 1.5],
+    "walk_distance": [1.0, 4.0], "walk_height": [1.1, 1.8], "walk_leg_s": [2.0, 6.0], "array_yaw": [0.0, 0.0],
+    "array_pitch": [0.0, 0.0], "array_roll": [0.0, 0.0], "array_turn_p": 1.0, "array_motion_p": 0.0, "array_speed": [0.0, 0.2],
+    "array_travel": 1.0, "array_yaw_rate": 60.0, "array_pitch_swing": 15.0,
+}
 _VEC3 = ("room_min", "room_max", "array_fraction_min", "array_fraction_max")
 
 
@@ -92,6 +102,30 @@ class SceneDistribution:
     # tracker that holds its track is right; otherwise it walks on through the pause.
     pause_after_s: float = 0.0
     pause_hold: bool = False
+    # Beyond the paper, moving talkers (doabench.acoustics.walks): with probability walk_p the
+    # talker is a person walking at walk_speed m/s (constant per scene) in lines, arcs around the
+    # array and reversals, walk_distance m (horizontally) from the array, mouth at walk_height m,
+    # in legs of walk_leg_s seconds; a walker keeps walking through pauses (pause_hold is for the
+    # paper's trajectories).
+    walk_p: float = 0.0
+    walk_speed: Range = (0.3, 1.5)
+    walk_distance: Range = (1.0, 4.0)
+    walk_height: Range = (1.1, 1.8)
+    walk_leg_s: Range = (2.0, 6.0)
+    # The array's orientation: with probability array_turn_p, yaw, pitch and roll in degrees,
+    # uniform in these ranges (0 or otherwise: the array axes are the room axes, as in the
+    # paper). With probability array_motion_p the array
+    # moves and turns like a robot head: back and forth at array_speed m/s within array_travel m,
+    # yaw turning at up to array_yaw_rate deg/s, pitch nodding up to array_pitch_swing deg.
+    array_yaw: Range = (0.0, 0.0)
+    array_pitch: Range = (0.0, 0.0)
+    array_roll: Range = (0.0, 0.0)
+    array_turn_p: float = 1.0
+    array_motion_p: float = 0.0
+    array_speed: Range = (0.0, 0.2)
+    array_travel: float = 1.0
+    array_yaw_rate: float = 60.0
+    array_pitch_swing: float = 15.0
 
     def __post_init__(self) -> None:
         for name in _RANGES + _VEC3:
@@ -122,7 +156,8 @@ class SceneDistribution:
                    f"scene parameter {name} must be a positive integer, got {v!r}")
             object.__setattr__(self, name, int(v))
         for name in ("duration_s", "p_static", "max_amplitude", "max_oscillations", "wall_margin",
-                     "min_array_distance", "directional_noise_p", "pause_p", "pause_after_s"):
+                     "min_array_distance", "directional_noise_p", "pause_p", "pause_after_s", "walk_p",
+                     "array_turn_p", "array_motion_p", "array_travel", "array_yaw_rate", "array_pitch_swing"):
             v = getattr(self, name)
             _check(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and math.isfinite(v),
                    f"scene parameter {name} must be a finite number, got {v!r}")
@@ -144,6 +179,22 @@ class SceneDistribution:
         _check(self.pause_after_s >= 0, f"pause_after_s must be >= 0 s, got {self.pause_after_s}")
         _check(isinstance(self.pause_hold, (bool, np.bool_)), f"pause_hold must be true or false, got {self.pause_hold!r}")
         object.__setattr__(self, "pause_hold", bool(self.pause_hold))
+        for name in ("walk_p", "array_turn_p", "array_motion_p"):
+            _check(0 <= getattr(self, name) <= 1, f"{name} must be a probability in [0, 1], got {getattr(self, name)}")
+        _check(self.walk_speed[0] > 0, f"walk_speed must be positive m/s, got {list(self.walk_speed)}")
+        _check(self.walk_distance[0] > 0, f"walk_distance must be positive metres, got {list(self.walk_distance)}")
+        _check(self.walk_height[0] > 0, f"walk_height must be positive metres, got {list(self.walk_height)}")
+        _check(self.walk_leg_s[0] > 0, f"walk_leg_s must be positive seconds, got {list(self.walk_leg_s)}")
+        _check(self.walk_p == 0 or self.walk_height[0] < self.room_max[2] - self.wall_margin,
+               f"walk_height {list(self.walk_height)} m does not fit under the highest ceiling {self.room_max[2]} m")
+        _check(self.walk_p == 0 or self.walk_distance[0] < max(self.room_max[:2]) - 2 * self.wall_margin,
+               f"walk_distance {list(self.walk_distance)} m cannot fit rooms of at most {list(self.room_max)} m")
+        for name, bound in (("array_yaw", 180.0), ("array_pitch", 90.0), ("array_roll", 180.0)):
+            _check(-bound <= getattr(self, name)[0] and getattr(self, name)[1] <= bound,
+                   f"{name} must lie in [-{bound:g}, {bound:g}] degrees, got {list(getattr(self, name))}")
+        _check(self.array_speed[0] >= 0 and self.array_travel >= 0 and self.array_yaw_rate >= 0
+               and self.array_pitch_swing >= 0,
+               "array_speed, array_travel, array_yaw_rate and array_pitch_swing must be >= 0")
 
     @property
     def n_samples(self) -> int:
@@ -154,7 +205,7 @@ class SceneDistribution:
         options appear only when set, so the distributions of earlier tasks keep their dicts."""
         d = {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
              for f in dataclasses.fields(self)}
-        for name, default in (("pause_after_s", 0.0), ("pause_hold", False)):
+        for name, default in _OPTIONAL_DEFAULTS.items():
             if d[name] == default:
                 del d[name]
         return d
@@ -217,8 +268,11 @@ def _frozen_array(x, shape_last: int = 3) -> np.ndarray:
 class Scene:
     """One drawn scene. Positions in metres in room coordinates unless said otherwise.
 
-    * ``array_position``: ``(3,)`` array centre; ``mic_positions``: ``(M, 3)`` in the array frame,
-      whose axes are the room axes
+    * ``array_position``: ``(3,)`` array centre (at the first point for a moving array);
+      ``mic_positions``: ``(M, 3)`` in the array frame
+    * ``array_rotation``: None (the array axes are the room axes), ``(3, 3)`` (a turned array) or
+      ``(S, 3, 3)`` (one per trajectory point: a turning array), array frame to room frame
+    * ``array_path``: None (a static array) or ``(S, 3)`` array centres per trajectory point
     * ``trajectory``: ``(S, 3)`` source positions, point ``i`` active during segment ``i``
       (see :mod:`doabench.acoustics.trajectories`); all equal when ``static``
     * ``speech``: the speech source's chunk ``info`` (None for geometry-only scenes)
@@ -240,6 +294,9 @@ class Scene:
     trajectory_params: dict[str, Any] = field(default_factory=dict)
     #: ``[start, stop)`` sample intervals in which the talker is silent (beyond the paper)
     speech_pauses: tuple[tuple[int, int], ...] = ()
+    array_rotation: np.ndarray | None = None
+    array_path: np.ndarray | None = None
+    array_motion_params: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "array_position", _frozen_array(self.array_position).reshape(3))
@@ -267,8 +324,22 @@ class Scene:
         _check(all(0 <= a <= b <= self.n_samples for a, b in pauses),
                f"speech pauses must be sample intervals inside the scene, got {[list(p) for p in pauses]}")
         object.__setattr__(self, "speech_pauses", pauses)
+        if self.array_rotation is not None:
+            rot = check_rotations(self.array_rotation)
+            _check(rot.ndim == 2 or len(rot) == len(traj),
+                   f"array_rotation must be (3, 3) or one per trajectory point ({len(traj)}), got {rot.shape}")
+            rot = rot.copy()
+            rot.setflags(write=False)
+            object.__setattr__(self, "array_rotation", rot)
+        if self.array_path is not None:
+            path = _frozen_array(self.array_path)
+            _check(path.ndim == 2 and path.shape == (len(traj), 3),
+                   f"array_path must have shape ({len(traj)}, 3), one centre per trajectory point, got {path.shape}")
+            object.__setattr__(self, "array_path", path)
+            check_inside(self.room, path, "array centre")
+        object.__setattr__(self, "array_motion_params", copy.deepcopy(dict(self.array_motion_params)))
         check_inside(self.room, self.array_position[None], "array centre")
-        check_inside(self.room, self.mic_room_positions, "microphone")
+        check_inside(self.room, self.mic_room_positions.reshape(-1, 3), "microphone")
         check_inside(self.room, traj, "source")
         if self.directional_noise is not None:
             check_inside(self.room, self.directional_noise.position[None], "directional noise source")
@@ -280,9 +351,27 @@ class Scene:
         return int(round(self.duration_s * self.fs))
 
     @property
+    def moving_array(self) -> bool:
+        """True when the array has a pose per trajectory point (it moves or turns)."""
+        return self.array_path is not None or (self.array_rotation is not None and self.array_rotation.ndim == 3)
+
+    @property
+    def array_centres(self) -> np.ndarray:
+        """Array centre per trajectory point ``(S, 3)`` for a moving array, else ``(3,)``."""
+        if self.moving_array:
+            if self.array_path is not None:
+                return self.array_path
+            return np.repeat(self.array_position[None], len(self.trajectory), axis=0)
+        return self.array_position
+
+    @property
     def mic_room_positions(self) -> np.ndarray:
-        """Microphones in room coordinates, ``(M, 3)``."""
-        return self.array_position + self.mic_positions
+        """Microphones in room coordinates: ``(M, 3)``, or ``(S, M, 3)`` for a moving array (the
+        microphones at each trajectory point's pose: ``c_i + R_i m``)."""
+        rot = self.array_rotation
+        local = self.mic_positions if rot is None else np.einsum("...ij,mj->...mi", rot, self.mic_positions)
+        centres = self.array_centres
+        return (centres[:, None, :] if centres.ndim == 2 else centres) + local
 
     @property
     def source_positions(self) -> np.ndarray:
@@ -290,13 +379,24 @@ class Scene:
         return self.trajectory[:1] if self.static else self.trajectory
 
     @property
+    def speed_deg_s(self) -> np.ndarray:
+        """Angular speed of the source seen from the array, deg/s per trajectory point ``(S,)``."""
+        from doabench.acoustics.walks import angular_speed_deg
+
+        dirs = sample_directions(self.trajectory, self.array_centres, len(self.trajectory), self.array_rotation)
+        times = (np.arange(len(dirs)) + 0.5) * (self.duration_s / len(dirs))
+        return angular_speed_deg(dirs, times)
+
+    @property
     def array(self) -> MicArray:
         return MicArray(self.array_name, np.array(self.mic_positions), source="scene")
 
     def sample_directions(self, n_samples: int | None = None) -> np.ndarray:
         """Per-sample truth directions in the array frame, ``(L, 3)`` float64 unit vectors."""
-        return sample_directions(self.source_positions, self.array_position,
-                                 self.n_samples if n_samples is None else n_samples)
+        n = self.n_samples if n_samples is None else n_samples
+        if self.moving_array:
+            return sample_directions(self.trajectory, self.array_centres, n, self.array_rotation)
+        return sample_directions(self.source_positions, self.array_position, n, self.array_rotation)
 
     # -- serialisation
 
@@ -318,6 +418,9 @@ class Scene:
             "trajectory_params": copy.deepcopy(self.trajectory_params),
             # only when present, so scenes without pauses keep their description
             **({"speech_pauses": [list(p) for p in self.speech_pauses]} if self.speech_pauses else {}),
+            **({"array_rotation": self.array_rotation.tolist()} if self.array_rotation is not None else {}),
+            **({"array_path": self.array_path.tolist()} if self.array_path is not None else {}),
+            **({"array_motion_params": copy.deepcopy(self.array_motion_params)} if self.array_motion_params else {}),
         }
 
     @classmethod
@@ -337,6 +440,9 @@ class Scene:
                 directional_noise=None if noise is None else DirectionalNoise.from_dict(noise),
                 trajectory_params=dict(d.get("trajectory_params", {})),
                 speech_pauses=tuple(tuple(p) for p in d.get("speech_pauses", ())),
+                array_rotation=None if d.get("array_rotation") is None else np.asarray(d["array_rotation"], np.float64),
+                array_path=None if d.get("array_path") is None else np.asarray(d["array_path"], np.float64),
+                array_motion_params=dict(d.get("array_motion_params", {})),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, ConfigError):
@@ -413,16 +519,60 @@ def sample_scene(
         noise = DirectionalNoise(noise_draw.points[0], noise_snr, dist.directional_noise_kind)
 
     pauses = sample_pauses(rngs["pauses"], dist)
-    points = draw.points
-    if dist.pause_hold and pauses and not draw.static:
+    points, static, params = draw.points, draw.static, draw.params()
+    rotation, path, motion = _sample_array_pose(rngs["array_pose"], dist, dims, centre, array)
+    walk = _sample_walk(rngs["walk"], dist, dims, centre, path)
+    if walk is not None:
+        points, static, params = walk.points, False, walk.params()
+    elif dist.pause_hold and pauses and not draw.static:
         points = hold_during_pauses(points, pauses, dist.n_samples)
+    if path is not None and static:  # a moving array hears a static talker from every pose
+        points = np.repeat(points[:1], dist.n_points, axis=0)
+    if path is not None and walk is None:  # the paper's trajectories: keep them clear of the moving array
+        _check_clearance(points, path, dist.min_array_distance)
     return Scene(
         room=room, snr_db=snr, array_position=centre, array_name=array.name,
-        mic_positions=np.array(array.positions), trajectory=points, static=draw.static,
+        mic_positions=np.array(array.positions), trajectory=points, static=static,
         seed=int(seed), duration_s=dist.duration_s, fs=dist.fs, speech=speech,
-        directional_noise=noise, trajectory_params=draw.params(),
-        speech_pauses=pauses,
+        directional_noise=noise, trajectory_params=params,
+        speech_pauses=pauses, array_rotation=rotation, array_path=path, array_motion_params=motion,
     )
+
+
+def _sample_walk(r: np.random.Generator, dist: SceneDistribution, dims: np.ndarray, centre: np.ndarray,
+                 array_path: np.ndarray | None):
+    """A walking talker with probability ``walk_p`` (its own stream: other parts do not move)."""
+    if dist.walk_p == 0 or not r.random() < dist.walk_p:
+        return None
+    return sample_walk(r, dims, centre, n_points=dist.n_points, duration_s=dist.duration_s, speed=dist.walk_speed,
+                       distance=dist.walk_distance, height=dist.walk_height, leg_s=dist.walk_leg_s,
+                       wall_margin=dist.wall_margin, array_path=array_path)
+
+
+def _sample_array_pose(r: np.random.Generator, dist: SceneDistribution, dims: np.ndarray, centre: np.ndarray,
+                       array: MicArray):
+    """``(rotation, path, motion params)``: None, None, {} for the paper's axis-aligned static array."""
+    ranges = (dist.array_yaw, dist.array_pitch, dist.array_roll)
+    turned = any(lo != 0 or hi != 0 for lo, hi in ranges) and r.random() < dist.array_turn_p
+    moving = dist.array_motion_p > 0 and r.random() < dist.array_motion_p
+    if not turned and not moving:
+        return None, None, {}
+    yaw, pitch, roll = (float(r.uniform(lo, hi)) if turned else 0.0 for lo, hi in ranges)
+    rotation = rotation_matrix(yaw, pitch, roll)
+    if not moving:
+        return rotation, None, {}
+    radius = float(np.linalg.norm(array.positions, axis=1).max())
+    motion = sample_array_motion(r, dims, centre, rotation, n_points=dist.n_points, duration_s=dist.duration_s,
+                                 speed=dist.array_speed, travel=dist.array_travel, yaw_rate=dist.array_yaw_rate,
+                                 pitch_swing=dist.array_pitch_swing, radius=radius, wall_margin=dist.wall_margin)
+    return motion.rotations, motion.centres, motion.params
+
+
+def _check_clearance(points: np.ndarray, centres: np.ndarray, min_distance: float) -> None:
+    d = np.linalg.norm(points - centres, axis=1)
+    if d.min() < min_distance:
+        raise ConfigError(f"the moving array comes within {d.min():.2f} m of the talker (min_array_distance "
+                          f"{min_distance} m); the scene is rejected")
 
 
 def sample_pauses(rng: np.random.Generator, dist: SceneDistribution) -> tuple[tuple[int, int], ...]:

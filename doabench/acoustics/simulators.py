@@ -54,7 +54,8 @@ class Simulator(Protocol):
         self, room: Room, sources: np.ndarray, mics: np.ndarray, signal: np.ndarray, fs: int, *, seed=None
     ) -> np.ndarray:
         """Microphone signals ``(M, L)`` float32 of ``signal`` ``(L,)`` moving along ``sources``
-        ``(S, 3)`` (S == 1: static)."""
+        ``(S, 3)`` (S == 1: static); ``mics`` ``(M, 3)``, or ``(S, M, 3)`` for an array that moves
+        with the trajectory's segments."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -82,11 +83,27 @@ def _points(room: Room | None, points, what: str) -> np.ndarray:
 
 
 def prepare_geometry(room: Room | None, sources, mics, fs) -> tuple[np.ndarray, np.ndarray, int]:
-    """Validate and return ``sources (S, 3)``, ``mics (M, 3)`` float64 and ``fs``."""
+    """Validate and return ``sources (S, 3)``, ``mics`` float64 and ``fs``.
+
+    ``mics`` is ``(M, 3)`` (a static array) or ``(S, M, 3)``: the microphones that hear trajectory
+    point ``s`` (a moving array; a single source point is then repeated to ``S`` points)."""
     if room is not None and not isinstance(room, Room):
         raise ConfigError(f"room must be a doabench.acoustics.room.Room, got {type(room).__name__}")
     fs = _check_fs(fs)
     src = _points(room, sources, "source point")
+    raw = np.asarray(mics, dtype=np.float64)
+    if raw.ndim == 3:  # a moving array
+        if raw.shape[2] != 3 or raw.shape[1] == 0 or (len(src) != 1 and raw.shape[0] != len(src)):
+            raise ConfigError(f"per-point microphone positions must have shape (S, M, 3) with S = {len(src)} "
+                              f"source points, got {raw.shape}")
+        mic = _points(room, raw.reshape(-1, 3), "array microphone").reshape(raw.shape)
+        if len(src) == 1:
+            src = np.repeat(src, raw.shape[0], axis=0)
+        d = np.linalg.norm(src[:, None] - mic, axis=-1)
+        if d.min() < _MIN_SOURCE_MIC_DISTANCE:
+            i, j = np.unravel_index(int(np.argmin(d)), d.shape)
+            raise ConfigError(f"source point {i + 1} is at array microphone {j + 1} (closer than 1 mm)")
+        return src, mic, fs
     mic = _points(room, mics, "array microphone")
     d = np.linalg.norm(src[:, None] - mic[None], axis=-1)
     if d.min() < _MIN_SOURCE_MIC_DISTANCE:
@@ -437,22 +454,25 @@ class PyroomacousticsSimulator(_TorchBackend):
 
     def early_part(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, layout) -> np.ndarray:
         """pyroomacoustics' image-source responses ``(S, M, n_early)`` float32 (our conventions)."""
-        S, M = len(sources), len(mics)
+        S, M = len(sources), mics.shape[-2]
         early = np.zeros((S, M, layout.n_early), dtype=np.float32)
         beta = room.reflection_coefficients()
         order = self.max_order(room, layout, fs)
+        # A moving array (mics (S, M, 3)): one room per point, each with that point's microphones.
+        per_room = 1 if mics.ndim == 3 else self.SOURCES_PER_ROOM
         with self._constants() as pra:
             shift = pra.constants.get("frac_delay_length") // 2
             materials = {w: pra.Material(energy_absorption=float(1 - b**2)) for w, b in zip(_PRA_WALLS, beta)}
-            for s0 in range(0, S, self.SOURCES_PER_ROOM):  # pyroomacoustics' API is per source
-                chunk = sources[s0 : s0 + self.SOURCES_PER_ROOM]
+            for s0 in range(0, S, per_room):  # pyroomacoustics' API is per source
+                chunk = sources[s0 : s0 + per_room]
+                room_mics = mics[s0] if mics.ndim == 3 else mics
                 shoebox = pra.ShoeBox(
                     list(room.dims), fs=fs, materials=materials, max_order=order,
                     air_absorption=False, ray_tracing=False, use_rand_ism=False,
                 )
                 for p in chunk:
                     shoebox.add_source(list(p))
-                shoebox.add_microphone_array(np.asarray(mics, dtype=np.float64).T)
+                shoebox.add_microphone_array(np.asarray(room_mics, dtype=np.float64).T)
                 shoebox.compute_rir()
                 for m in range(M):
                     for k in range(len(chunk)):
@@ -468,7 +488,7 @@ class PyroomacousticsSimulator(_TorchBackend):
         delays = engine.direct_delays(src, mic, fs)
         layout = engine.rir_layout(room, float(delays.max()), fs)
         width = layout.n_early if width is None else max(int(width), layout.n_early)
-        early = torch.zeros(len(sources), len(mics), width, dtype=torch.float32, device=self.device)
+        early = torch.zeros(len(sources), mics.shape[-2], width, dtype=torch.float32, device=self.device)
         early[..., : layout.n_early] = torch.as_tensor(self.early_part(room, sources, mics, fs, layout), device=self.device)
         levels = None
         if room.t60 > 0 and layout.n_taps > layout.n_diff:
@@ -507,6 +527,9 @@ class GpuRIRSimulator(_TorchBackend):
 
     def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
         g = self._gpurir
+        if np.ndim(mics) == 3:
+            raise ConfigError("the gpurir backend simulates static arrays only; use builtin or pyroomacoustics "
+                              "for a moving array")
         dims = np.asarray(room.dims)
         if room.t60 == 0:
             beta = np.zeros(6)

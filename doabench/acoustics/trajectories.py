@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from doabench.acoustics.walks import array_frame_directions
 from doabench.errors import ConfigError
 from doabench.geometry import normalize
 
@@ -50,15 +51,24 @@ def segment_of_samples(n_samples: int, n_segments: int) -> np.ndarray:
     return np.repeat(np.arange(n_segments, dtype=np.int64), np.diff(bounds))
 
 
-def sample_directions(trajectory: np.ndarray, array_position: np.ndarray, n_samples: int) -> np.ndarray:
-    """Per-sample unit vectors from the array centre to the source, ``(L, 3)`` float64.
+def sample_directions(trajectory: np.ndarray, array_position: np.ndarray, n_samples: int,
+                      array_rotation: np.ndarray | None = None) -> np.ndarray:
+    """Per-sample unit vectors from the array centre to the source in the array frame, ``(L, 3)``
+    float64.
 
-    ``trajectory``: ``(S, 3)`` room coordinates; ``array_position``: ``(3,)``. The array axes are
-    the room axes, so the array-frame direction is ``normalize(p_i - array_position)``.
+    ``trajectory``: ``(S, 3)`` room coordinates; ``array_position``: ``(3,)``, or ``(S, 3)`` for a
+    moving array; ``array_rotation``: None (the array axes are the room axes), ``(3, 3)`` or
+    ``(S, 3, 3)`` (array frame to room frame, :mod:`doabench.acoustics.walks`). Point ``i`` uses
+    pose ``i``; the direction is ``R_i^T (p_i - c_i)`` normalised. A single source point with a
+    moving array is heard from every pose.
     """
     traj = np.asarray(trajectory, dtype=np.float64).reshape(-1, 3)
-    per_point = normalize(traj - np.asarray(array_position, dtype=np.float64))
-    return per_point[segment_of_samples(n_samples, len(traj))]
+    centres = np.asarray(array_position, dtype=np.float64)
+    if array_rotation is None:
+        per_point = normalize(traj - centres)
+    else:
+        per_point = array_frame_directions(traj, centres, array_rotation)
+    return per_point[segment_of_samples(n_samples, len(per_point))]
 
 
 def eq6_points(start: np.ndarray, end: np.ndarray, amplitude: np.ndarray, omega: np.ndarray,

@@ -10,7 +10,7 @@ from doabench.arrays import get_array
 from doabench.envs.sources import episode_seed, make_speech_source
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
-from doabench.errors import NotFoundError
+from doabench.errors import ConfigError, NotFoundError
 
 
 class SimulatedEpisodes:
@@ -25,7 +25,13 @@ class SimulatedEpisodes:
         self.spec = spec
         self.array = get_array(spec.array)
         self.speech = make_speech_source(dict(spec.params.get("speech", {})), librispeech)
-        self.simulator = get_simulator(backend, device=device)
+        # A task that names its simulator ([simulator] backend, e.g. sim-walk-pra) is rendered by
+        # it: the backend is part of what the task measures, so only the default gives way to it.
+        task_backend = dict(spec.params.get("simulator", {})).get("backend")
+        if task_backend is not None and backend not in ("builtin", task_backend):
+            raise ConfigError(f"task {spec.id!r} is rendered by the {task_backend} simulator; --backend {backend} "
+                              "would change its episodes")
+        self.simulator = get_simulator(task_backend or backend, device=device)
         self.device = device
         if "cells" in spec.params:  # a grid: its cells' episodes, cell after cell
             from doabench.envs.registry import get_task_spec

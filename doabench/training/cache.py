@@ -10,7 +10,8 @@ Layout of a cache folder (one per task/split/T60 range)::
 
 Each ``.npz`` holds ``audio`` ``(M, L)`` float16 (the reverberant signal divided by ``scale``),
 ``scale``, ``signal_power`` (the SNR reference power of ``audio``, i.e. already divided by
-``scale**2``), ``vad`` ``(L,)`` bool, ``trajectory`` ``(S, 3)``, ``array_position`` ``(3,)``,
+``scale**2``), ``vad`` ``(L,)`` bool, ``trajectory`` ``(S, 3)``, ``array_position`` ``(3,)`` or ``(S, 3)`` (a moving array),
+``array_rotation`` ``(3, 3)`` or ``(S, 3, 3)`` (absent in caches written before arrays turned: identity),
 ``snr_db`` (the scene's own SNR draw, used for validation), ``t60`` and ``seed``.
 Item ``i`` is the scene of seed ``episode_seed(base_seed, SPLIT_KEYS[split], i[, attempt])``;
 ``attempt`` counts redraws of scenes the room model rejects (e.g. an unreachable T60).
@@ -60,8 +61,10 @@ def render_item(scene, speech, array, simulator) -> dict[str, Any]:
         "scale": np.float64(scale),
         "signal_power": np.float64(r.signal_power / scale**2),
         "vad": np.asarray(r.episode.sample_vad, dtype=bool),
-        "trajectory": np.asarray(scene.source_positions, dtype=np.float64),
-        "array_position": np.asarray(scene.array_position, dtype=np.float64),
+        "trajectory": np.asarray(scene.trajectory if scene.moving_array else scene.source_positions, dtype=np.float64),
+        "array_position": np.asarray(scene.array_centres, dtype=np.float64),  # (3,) or (S, 3) for a moving array
+        # (3, 3) or (S, 3, 3); identity for the paper's axis-aligned array
+        "array_rotation": np.eye(3) if scene.array_rotation is None else np.asarray(scene.array_rotation, np.float64),
         "snr_db": np.float64(scene.snr_db),
         "t60": np.float64(scene.room.t60),
         "seed": np.int64(scene.seed),

@@ -28,12 +28,13 @@ from doabench.training.cache import MAX_ATTEMPTS, TrajectoryCache
 
 
 def frame_truth(trajectory: np.ndarray, array_position: np.ndarray, sample_vad: np.ndarray,
-                frame_spec: FrameSpec) -> tuple[np.ndarray, np.ndarray]:
+                frame_spec: FrameSpec, array_rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame unit directions ``(T, 3)`` float32 and frame VAD ``(T,)`` bool of a cached
     trajectory (no :class:`~doabench.episode.Episode`; rendered items use its ``frame_truth``,
     which gives the same values from the same ``doabench.framing`` rules)."""
     n = len(sample_vad)
-    dirs = frame_mean_directions(sample_directions(trajectory, array_position, n), frame_spec.window, frame_spec.hop)
+    dirs = frame_mean_directions(sample_directions(trajectory, array_position, n, array_rotation),
+                                 frame_spec.window, frame_spec.hop)
     return dirs.astype(np.float32), np.asarray(frame_vad(sample_vad, frame_spec.window, frame_spec.hop), bool)
 
 
@@ -43,7 +44,8 @@ def noisy_item(item: dict[str, np.ndarray], snr_db: float, seed: int, frame_spec
     g = torch.Generator().manual_seed(int(seed) & 0x7FFF_FFFF_FFFF_FFFF)
     noise_std = float(np.sqrt(item["signal_power"] / 10.0 ** (snr_db / 10.0)))
     audio = audio + noise_std * torch.randn(audio.shape, generator=g)
-    truth, vad = frame_truth(item["trajectory"], item["array_position"], item["vad"], frame_spec)
+    truth, vad = frame_truth(item["trajectory"], item["array_position"], item["vad"], frame_spec,
+                             item.get("array_rotation"))
     return {"audio": audio, "sample_vad": torch.from_numpy(item["vad"]), "truth": torch.from_numpy(truth),
             "vad": torch.from_numpy(vad)}
 
