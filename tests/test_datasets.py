@@ -276,7 +276,8 @@ def test_replay_a_dataset_file_as_a_task(reference, tmp_path):
     assert type(env._episode).__name__ == "StoredEpisode" and env._episode.n_samples == 16000
     with DatasetFile(reference) as f:
         np.testing.assert_array_equal(obs["srp"], f.read(3, ["srp:8x16"])["srp:8x16"][0])
-    assert info["metadata"]["episode_index"] == 3
+    assert info["episode"] == 3 and "metadata" not in info  # the scene is not handed out during the episode
+    assert env.load_episode(3)[0].metadata["episode_index"] == 3
     _, framed, _ = DoaEnv(task, features=("srp", "audio"), resolution=(8, 16)).load_episode(0)
     assert framed["audio"].shape == (len(framed["srp"]), 12, 4096)  # the env's framed audio observation
     # A resolution that is not stored is computed from the stored audio, like the live task does.

@@ -4,6 +4,11 @@ One episode is one recording (simulated trajectory or real recording). ``reset``
 returns the features of frame 0; each ``step(action)`` takes the tracker's direction for the
 current frame, returns ``reward = -angular error`` (radians) for it and the features of the next
 frame. The truth of a frame is only revealed in ``info`` after its step, so a tracker cannot peek.
+Nothing else about the episode is handed out while it runs: ``reset``'s ``info`` holds the episode
+index, its frame count and frame times, never the scene (room, trajectory, array position, T60,
+SNR, seed, speech). The evaluator's view of the episode (:meth:`DoaEnv.episode_metadata`,
+:meth:`DoaEnv.episode_truth`, :attr:`DoaEnv.current_episode`) answers only once the episode is
+over: after the step that terminates it, or after :meth:`DoaEnv.score_offline`.
 
 Features are causal per frame (each needs only the samples of its own window), so computing all of
 an episode's frames at reset is identical to streaming them (``doabench.features`` tests this);
@@ -15,6 +20,7 @@ Non-causal trackers use the separate offline path :meth:`DoaEnv.offline_episode`
 from __future__ import annotations
 
 import copy
+import dataclasses
 from collections import OrderedDict
 from typing import Any, Sequence
 
@@ -127,8 +133,8 @@ class DoaEnv(gymnasium.Env):
         self._episode_index = index
         self._n_frames = len(self._truth["directions"])
         self._t = 0
-        info = {"episode": index, "n_frames": self._n_frames, "frame_times": self._truth["times"].copy(),
-                "metadata": copy.deepcopy(self._episode.metadata)}
+        # What a deployed tracker could know too: no scene, truth or seed (episode_metadata() has them)
+        info = {"episode": index, "n_frames": self._n_frames, "frame_times": self._truth["times"].copy()}
         return self._observation(0), info
 
     def step(self, action):
@@ -158,13 +164,66 @@ class DoaEnv(gymnasium.Env):
             raise gymnasium.error.ResetNeeded("call reset() before offline_episode()")
         return {**{k: self._feats[k] for k in self.features}, "vad": self._feats["vad"]}
 
+    def score_offline(self, directions: Any) -> np.ndarray:
+        """Score every frame of the current episode at once: ``directions`` ``(T, 3)`` (the offline
+        tracker's output) -> the per-frame errors ``(T,)`` in radians. Ends the episode, as the
+        last ``step`` does: later steps raise ``ResetNeeded``."""
+        if self._episode_index is None:
+            raise gymnasium.error.ResetNeeded("call reset() before score_offline()")
+        if self._t >= self._n_frames and self._n_frames:
+            raise gymnasium.error.ResetNeeded("the episode is over; call reset()")
+        a = np.asarray(directions, dtype=np.float64)
+        if a.shape != (self._n_frames, 3) or not np.all(np.isfinite(a)) or not np.all(np.any(a, axis=1)):
+            raise InputError(f"directions must be finite, non-zero vectors of shape ({self._n_frames}, 3), "
+                             f"got {a.shape}")
+        errors = np.asarray(great_circle_error(a, self._truth["directions"]), dtype=np.float64).reshape(-1)
+        self._t = self._n_frames
+        return errors
+
+    # -- what the tracker may use besides the observations -----------------------------------------
+    @property
+    def episode_array(self) -> MicArray:
+        """The array the current episode was recorded with: the task's, or the recording's own
+        (LOCATA's measured positions). Geometry of the microphones in the array frame only: a
+        recording's own array is handed out without the file it was read from (its folder holds
+        the recording's truth)."""
+        if self._episode_index is None:
+            raise gymnasium.error.ResetNeeded("call reset() before episode_array")
+        own = self._episode.array
+        if own is None:
+            return self.array
+        return dataclasses.replace(own, source=f"episode {self._episode_index} of {self.spec_task.id}")
+
+    # -- the evaluator's view: only once the episode is over ---------------------------------------
+    @property
+    def episode_over(self) -> bool:
+        """True once every frame of the current episode has been scored (by ``step`` or
+        :meth:`score_offline`)."""
+        return self._episode_index is not None and self._t >= self._n_frames
+
+    def _require_over(self, what: str) -> None:
+        if self._episode_index is None:
+            raise gymnasium.error.ResetNeeded(f"call reset() before {what}")
+        if self._t < self._n_frames:
+            raise RuntimeError(f"{what} of episode {self._episode_index} is available once the episode is over "
+                               f"(frame {self._t} of {self._n_frames} is next): step to termination, or call "
+                               "score_offline()")
+
     @property
     def current_episode(self) -> Episode:
-        """The :class:`~doabench.episode.Episode` that the last ``reset()`` loaded (audio, array, metadata)."""
-        if self._episode_index is None:
-            raise gymnasium.error.ResetNeeded("call reset() before current_episode")
+        """The :class:`~doabench.episode.Episode` that the last ``reset()`` loaded (audio, array,
+        truth, metadata); once the episode is over."""
+        self._require_over("current_episode")
         return self._episode
 
     def episode_truth(self) -> dict[str, np.ndarray]:
-        """Truth of the current episode; the runner reads it only after the tracker has finished."""
+        """Per-frame truth of the current episode (``directions``, ``vad``, ``times``, ...); once the
+        episode is over (the runner reads it after the tracker has finished)."""
+        self._require_over("episode_truth()")
         return self._truth
+
+    def episode_metadata(self) -> dict[str, Any]:
+        """A copy of the current episode's metadata (scene parameters, room, trajectory, seeds,
+        speech, recording ids): what the results record per episode; once the episode is over."""
+        self._require_over("episode_metadata()")
+        return copy.deepcopy(self._episode.metadata)

@@ -1,10 +1,12 @@
 """The evaluation loop: a tracker over a task's episodes, scored (what ``doabench run`` does).
 
-Per episode the loop resets the environment, resets the tracker with the array, then either
+Per episode the loop resets the environment, resets the tracker with the array and
+:func:`reset_context` (frames and task id: nothing about the scene or the truth), then either
 steps frame by frame (causal trackers) or hands the whole episode over (offline trackers):
-:func:`track_frames`, which ``doabench track`` can share. Every direction the tracker returns is
-checked (shape (3,), finite, non-zero) before it reaches the environment. Finished episodes are
-journalled (:mod:`doabench.runner.journal`), so an interrupted run continues where it stopped
+:func:`track_frames`, which ``doabench track`` can share. The truth and the episode's metadata
+(for the results) are read from the environment once every frame has been scored. Every
+direction the tracker returns is checked (shape (3,), finite, non-zero) before it reaches the
+environment. Finished episodes are journalled (:mod:`doabench.runner.journal`), so an interrupted run continues where it stopped
 when run again with the same settings; :mod:`doabench.runner.summary` assembles the results.
 """
 from __future__ import annotations
@@ -121,24 +123,35 @@ def track_frames(tracker: Tracker, n_frames: int, first: Any, advance: Callable[
     return estimates
 
 
+def reset_context(env: DoaEnv) -> dict[str, Any]:
+    """The keyword arguments of ``tracker.reset(array, **context)`` for the episode ``env`` has
+    just reset: what a deployed tracker knows too (:class:`~doabench.trackers.base.ResetContext`),
+    the frames and the task id. Never the episode's metadata, truth or seed."""
+    return {"frame_spec": env.frame_spec, "task": env.spec_task.id}
+
+
 def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
-    """One episode: returns estimates, truth, vad, times and timings."""
+    """One episode: returns estimates, truth, vad, times, metadata and timings.
+
+    The tracker gets the array, :func:`reset_context` and the observations; the truth and the
+    metadata are read from the environment once every frame has been scored."""
     obs, info = env.reset(options={"episode": index})
     n = info["n_frames"]
-    episode = env.current_episode
-    array = episode.array or env.array
-    guarded(tracker, f"reset() of episode {index}",
-            lambda: tracker.reset(array, frame_spec=env.frame_spec, task=env.spec_task.id,
-                                  metadata=episode.metadata))
+    array = env.episode_array
+    context = reset_context(env)
+    guarded(tracker, f"reset() of episode {index}", lambda: tracker.reset(array, **context))
     start = time.perf_counter()
     estimates = track_frames(tracker, n, obs, lambda t, d: env.step(d.astype(np.float32))[0], env.offline_episode,
                              where=f" of episode {index}")
     tracker_s = time.perf_counter() - start
+    if not env.episode_over:  # the offline path: the tracker's whole output is scored at once
+        env.score_offline(estimates)
     truth = env.episode_truth()
+    episode = env.current_episode
     valid = np.asarray(truth.get("valid", np.ones(n, bool)), dtype=bool)
     return {"estimates": estimates, "truth": truth["directions"], "vad": truth["vad"], "times": truth["times"],
             "valid": valid, "planar": bool(array.planar),
-            "tracker_s": tracker_s, "audio_s": episode.n_samples / episode.fs, "metadata": episode.metadata}
+            "tracker_s": tracker_s, "audio_s": episode.n_samples / episode.fs, "metadata": env.episode_metadata()}
 
 
 def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,

@@ -44,12 +44,16 @@ from doabench.framing import FrameSpec
 
 class ResetContext(TypedDict, total=False):
     """The keyword arguments of :meth:`Tracker.reset` besides the array. Every key is optional:
-    ``doabench run`` passes all three, ``doabench track`` (a user's recording) only ``frame_spec``.
-    A tracker should accept and ignore keys it does not know (``**context``)."""
+    ``doabench run`` passes both, ``doabench track`` (a user's recording) only ``frame_spec``.
+    A tracker should accept and ignore keys it does not know (``**context``).
+
+    A tracker is told what a deployed tracker would know: the array (``reset``'s first argument),
+    these keys and the observations. Nothing about the episode's scene (room, source trajectory,
+    array position, T60, SNR, speech), its truth or its seed reaches a tracker; the runner reads
+    them from the environment after the episode has been scored."""
 
     frame_spec: FrameSpec    # frames of the observations that follow (window, hop, fs)
     task: str                # id of the task the episode comes from
-    metadata: Mapping[str, Any]  # the episode's metadata (scene, seed, recording, ...)
 
 
 class Tracker:
@@ -112,7 +116,7 @@ class Tracker:
         """Start a new episode recorded with ``array``. Called before the first step.
 
         ``context``: the keys of :class:`ResetContext` that the caller knows (``frame_spec``,
-        ``task``, ``metadata``), each optional."""
+        ``task``), each optional. Nothing about the episode's scene or truth is passed."""
 
     def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         """One frame in, one direction ``(3,)`` out (causal trackers)."""
