@@ -163,3 +163,18 @@ def grid_spacing_deg(n_theta: int, n_phi: int, planar: bool = False) -> tuple[fl
     """(elevation step, azimuth step) in degrees."""
     top = 90.0 if planar else 180.0
     return top / (n_theta - 1), 360.0 / n_phi
+
+
+def angular_speed_deg(directions: np.ndarray, period_s: float | np.ndarray) -> np.ndarray:
+    """Angular speed in deg/s ``(T,)`` of unit ``directions`` ``(T, 3)`` sampled every ``period_s``
+    seconds (or at times ``(T,)``): central differences of the great-circle angle between
+    neighbours, one-sided at the ends; zeros for fewer than two samples."""
+    d = np.asarray(directions, np.float64)
+    if len(d) < 2:
+        return np.zeros(len(d))
+    dt = np.diff(np.asarray(period_s, np.float64)) if np.ndim(period_s) else float(period_s)
+    step = np.degrees(great_circle_error(d[1:], d[:-1])) / dt
+    out = np.empty(len(d))
+    out[0], out[-1] = step[0], step[-1]
+    out[1:-1] = 0.5 * (step[1:] + step[:-1])
+    return out

@@ -12,6 +12,20 @@ Definitions (all angles reported in degrees):
 
 Aggregation over episodes comes in two labelled flavours: ``pooled`` (all frames of all episodes
 in one pool, the paper's way) and ``episode_mean`` (the mean of per-episode values).
+
+Tracking lag (beyond the paper): the delay ``tau`` of the truth, 0 to 2 s in steps of 0.05 s,
+that minimises the RMSAE between the estimates and the truth delayed by ``tau``
+(``truth(t - tau)``, interpolated between frames along the great circle's chord and normalised),
+over the voice-active frames at least 2 s into the episode (the same frames for every ``tau``).
+A tracker that follows the talker's path late by half a second has a lag of 0.5 s. A static or
+nearly static source (median angular speed of the truth over those frames below 1 deg/s) has no
+defined lag: every delay fits alike, and the lag is reported as None with the reason. Each
+episode keeps its curve of summed squared errors per delay (``lag_sse``, ``lag_frames``), so the
+pooled lag is the delay minimising the pooled curve over the episodes with a defined lag.
+
+RMSAE by angular speed: the voice-active frames split by the angular speed of the truth seen from
+the array (central differences of the frame truth) into the bands of ``SPEED_BANDS``; each
+episode keeps the summed squared errors and frame counts per band, pooled exactly.
 """
 from __future__ import annotations
 
@@ -19,9 +33,14 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from doabench.geometry import great_circle_error, unit_to_angles, wrap_angle
+from doabench.geometry import angular_speed_deg, great_circle_error, normalize, unit_to_angles, wrap_angle
 
 THRESHOLDS_DEG = (5, 10, 20, 30)
+LAG_MAX_S = 2.0
+LAG_STEP_S = 0.05
+STATIC_SPEED_DEG_S = 1.0
+#: angular-speed bands in deg/s, ``(label, low, high)``: low <= speed < high
+SPEED_BANDS = (("<5", 0.0, 5.0), ("5-15", 5.0, 15.0), ("15-30", 15.0, 30.0), (">30", 30.0, float("inf")))
 
 
 def frame_errors_deg(estimates: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -173,3 +192,92 @@ def group_by(rows: Iterable[dict], keys: Sequence[str]) -> dict[tuple, list[dict
     for row in rows:
         groups.setdefault(tuple(row.get(k) for k in keys), []).append(row)
     return groups
+
+
+def lag_grid(max_lag_s: float = LAG_MAX_S, step_s: float = LAG_STEP_S) -> np.ndarray:
+    """The candidate delays in seconds, ``(D,)``: 0, step, ..., max."""
+    return np.round(np.arange(int(round(max_lag_s / step_s)) + 1) * step_s, 10)
+
+
+def delayed_truth(truth: np.ndarray, delays_frames: np.ndarray) -> np.ndarray:
+    """``truth(t - d)`` for every delay ``d`` (in frames, fractional) ``(D,)`` and frame ``t`` of
+    ``truth`` ``(T, 3)``: ``(D, T, 3)`` unit vectors, linear between neighbouring frames then
+    normalised; NaN where ``t - d`` lies before the first frame."""
+    u = np.asarray(truth, np.float64)
+    T = len(u)
+    pos = np.arange(T)[None, :] - np.asarray(delays_frames, np.float64)[:, None]  # (D, T)
+    i0 = np.floor(pos).astype(np.int64)
+    w = (pos - i0)[..., None]
+    lo = u[np.clip(i0, 0, T - 1)]
+    hi = u[np.clip(i0 + 1, 0, T - 1)]
+    out = normalize((1.0 - w) * lo + w * hi)
+    out[pos < 0] = np.nan
+    return out
+
+
+def lag_curve(estimates: np.ndarray, truth: np.ndarray, vad: np.ndarray, frame_period_s: float,
+              max_lag_s: float = LAG_MAX_S, step_s: float = LAG_STEP_S) -> dict:
+    """An episode's lag evidence (module docstring): ``{"lag_sse": (D,) summed squared errors in
+    deg^2 per delay of :func:`lag_grid`, "lag_frames": frames used, "lag_speed": median angular
+    speed of the truth over them (deg/s)}``. ``estimates``, ``truth`` ``(T, 3)``, ``vad`` ``(T,)``."""
+    est = np.asarray(estimates, np.float64)
+    u = np.asarray(truth, np.float64)
+    lags = lag_grid(max_lag_s, step_s)
+    first = int(np.ceil(max_lag_s / frame_period_s - 1e-9))
+    use = np.asarray(vad, bool).copy()
+    use[:first] = False
+    if not use.any():
+        return {"lag_sse": [0.0] * len(lags), "lag_frames": 0, "lag_speed": float("nan")}
+    delayed = delayed_truth(u, lags / frame_period_s)[:, use]  # (D, n, 3)
+    errors = frame_errors_deg(np.broadcast_to(est[use], delayed.shape), delayed)  # (D, n)
+    speed = angular_speed_deg(u, frame_period_s)[use]
+    return {"lag_sse": np.square(errors).sum(1).tolist(), "lag_frames": int(use.sum()),
+            "lag_speed": float(np.median(speed))}
+
+
+def lag_from_curves(curves: Sequence[dict], max_lag_s: float = LAG_MAX_S,
+                    step_s: float = LAG_STEP_S) -> tuple[float | None, str]:
+    """The lag in seconds minimising the summed curves of the episodes whose truth moves, and a
+    note: ``(lag, "")``, or ``(None, reason)`` when no episode has a defined lag."""
+    moving = [c for c in curves if c.get("lag_frames", 0) > 0 and np.isfinite(c.get("lag_speed", np.nan))
+              and c["lag_speed"] >= STATIC_SPEED_DEG_S]
+    if not moving:
+        if any(c.get("lag_frames", 0) > 0 for c in curves):
+            return None, f"static source (truth moves below {STATIC_SPEED_DEG_S:g} deg/s): no defined lag"
+        return None, f"no voice-active frame after the first {max_lag_s:g} s: no defined lag"
+    total = np.sum([np.asarray(c["lag_sse"], np.float64) for c in moving], axis=0)
+    return float(lag_grid(max_lag_s, step_s)[int(np.argmin(total))]), ""
+
+
+def speed_band_sums(errors: np.ndarray, truth: np.ndarray, vad: np.ndarray, frame_period_s: float) -> dict:
+    """Summed squared errors and frame counts of the voice-active frames per angular-speed band
+    of the truth: ``{label: [sse, n]}`` (``errors`` ``(T,)`` deg, ``truth`` ``(T, 3)``)."""
+    e = np.asarray(errors, np.float64)
+    speed = angular_speed_deg(np.asarray(truth, np.float64), frame_period_s)
+    active = np.asarray(vad, bool)
+    out = {}
+    for label, lo, hi in SPEED_BANDS:
+        m = active & (speed >= lo) & (speed < hi)
+        out[label] = [float(np.square(e[m]).sum()), int(m.sum())]
+    return out
+
+
+def pooled_speed_bands(rows: Sequence[dict]) -> dict[str, dict]:
+    """Pooled RMSAE per angular-speed band from per-episode ``speed_bands`` sums:
+    ``{label: {"rmsae": deg or NaN, "n_frames": n}}``."""
+    out = {}
+    for label, _, _ in SPEED_BANDS:
+        sse = sum(r["speed_bands"][label][0] for r in rows if "speed_bands" in r)
+        n = sum(r["speed_bands"][label][1] for r in rows if "speed_bands" in r)
+        out[label] = {"rmsae": float(np.sqrt(sse / n)) if n else float("nan"), "n_frames": int(n)}
+    return out
+
+
+def motion_metrics(estimates: np.ndarray, truth: np.ndarray, vad: np.ndarray, frame_period_s: float) -> dict:
+    """An episode's lag (s, or None with ``lag_note``), its lag curve and its angular-speed band
+    sums, from ``estimates``, ``truth`` ``(T, 3)`` and ``vad`` ``(T,)``."""
+    curve = lag_curve(estimates, truth, vad, frame_period_s)
+    lag, note = lag_from_curves([curve])
+    errors = frame_errors_deg(estimates, truth)
+    return {"lag_s": lag, **({"lag_note": note} if note else {}), **curve,
+            "speed_bands": speed_band_sums(errors, truth, vad, frame_period_s)}

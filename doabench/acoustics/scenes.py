@@ -25,6 +25,7 @@ from doabench.acoustics.trajectories import sample_directions, sample_trajectory
 from doabench.acoustics.walks import check_rotations, rotation_matrix, sample_array_motion, sample_walk
 from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError
+from doabench.geometry import angular_speed_deg
 
 # Independent random streams of a scene seed, in SeedSequence spawn order. Append, never reorder:
 # the order is part of what makes a seed reproduce the same scene.
@@ -381,8 +382,6 @@ class Scene:
     @property
     def speed_deg_s(self) -> np.ndarray:
         """Angular speed of the source seen from the array, deg/s per trajectory point ``(S,)``."""
-        from doabench.acoustics.walks import angular_speed_deg
-
         dirs = sample_directions(self.trajectory, self.array_centres, len(self.trajectory), self.array_rotation)
         times = (np.arange(len(dirs)) + 0.5) * (self.duration_s / len(dirs))
         return angular_speed_deg(dirs, times)

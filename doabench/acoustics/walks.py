@@ -93,6 +93,12 @@ class WalkDraw:
                 "tries": self.tries}
 
 
+def _fits(xy: np.ndarray, new: np.ndarray, lo, hi, centre: np.ndarray, dmin: float, dmax: float) -> bool:
+    """A step from ``xy`` to ``new`` stays in the region: its end and its midpoint (a straight
+    step past the array could cross the inner circle; an arc's midpoint lies on its circle)."""
+    return _inside(new, lo, hi, centre, dmin, dmax) and _inside((xy + new) / 2, lo, hi, centre, 0.9 * dmin, dmax)
+
+
 def _inside(xy: np.ndarray, lo: np.ndarray, hi: np.ndarray, centre: np.ndarray, dmin: float, dmax: float) -> bool:
     r = math.hypot(xy[0] - centre[0], xy[1] - centre[1])
     return bool(np.all(xy >= lo) and np.all(xy <= hi) and dmin <= r <= dmax)
@@ -145,6 +151,10 @@ def sample_walk(
                           f"(wall margin {wall_margin} m)")
     dmin, dmax = float(distance[0]), float(distance[1])
     dt = float(duration_s) / n_points
+    if speed[1] * dt > dmin / 2:  # one step would jump a good part of the way round the array
+        raise ConfigError(f"walk_speed up to {speed[1]:g} m/s moves {speed[1] * dt:.2f} m per trajectory point "
+                          f"({dt:.3f} s), more than half the nearest walk_distance {dmin:g} m; lower the speed or use "
+                          "more points (n_points)")
     for tries in range(1, max_tries + 1):
         v = float(rng.uniform(*speed))
         z = float(min(rng.uniform(*height), z_hi))
@@ -170,11 +180,11 @@ def sample_walk(
                 legs.append(kind)
             centre = path[i]
             new, walked = _step(xy, kind, heading, turn, v * dt, centre)
-            if not _inside(new, lo, hi, centre, dmin, dmax):
+            if not _fits(xy, new, lo, hi, centre, dmin, dmax):
                 for _ in range(_NEW_LEG_TRIES):
                     kind, heading, turn = _new_leg(rng, kind, heading, turn)
                     new, walked = _step(xy, kind, heading, turn, v * dt, centre)
-                    if _inside(new, lo, hi, centre, dmin, dmax):
+                    if _fits(xy, new, lo, hi, centre, dmin, dmax):
                         left = float(rng.uniform(*leg_s))
                         legs.append(kind)
                         break
@@ -273,17 +283,3 @@ def array_frame_directions(points: np.ndarray, centres: np.ndarray, rotations: n
     rot = np.asarray(rotations, np.float64)
     local = np.einsum("...ji,...j->...i", rot, rel) if rot.ndim == 3 else rel @ rot
     return normalize(np.atleast_2d(local))
-
-
-def angular_speed_deg(directions: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Angular speed ``(T,)`` deg/s of unit ``directions`` ``(T, 3)`` sampled at ``times`` ``(T,)``
-    (central differences of the great-circle angle; one-sided at the ends)."""
-    d = np.asarray(directions, np.float64)
-    t = np.asarray(times, np.float64)
-    if len(d) < 2:
-        return np.zeros(len(d))
-    step = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", d[1:], d[:-1]), -1.0, 1.0))) / np.diff(t)
-    out = np.empty(len(d))
-    out[0], out[-1] = step[0], step[-1]
-    out[1:-1] = 0.5 * (step[1:] + step[:-1])
-    return out

@@ -100,3 +100,66 @@ class SrpKalmanTracker(_SrpGridTracker):
                 self._p = (1 - gain) * self._p
                 self._x /= max(np.linalg.norm(self._x), 1e-12)
         return self._x
+
+
+@register_tracker("srp-kalman-cv")
+class SrpKalmanCvTracker(_SrpGridTracker):
+    """SRP argmax followed by a constant-velocity Kalman filter on the direction: a tracker that
+    models motion (``srp-kalman`` is a random walk and trails a walking talker).
+
+    State ``(u, v)``: the direction ``u`` (a unit vector) and its velocity ``v`` per frame (kept in
+    the tangent plane of ``u``), with the nearly-constant-velocity model ``u' = u + v``, ``v' = v``
+    and white acceleration noise of spectral density ``q`` (squared unit-vector units per frame^3);
+    measurement: the argmax direction with noise ``r``. After each update ``u`` is projected back
+    onto the sphere and ``v`` onto its tangent plane. Measurements further than ``gate_deg`` from
+    the prediction count with ``gate_factor`` times the noise. In silent frames the filter predicts
+    with its velocity shrunk by ``silence_decay`` per frame, so a track coasts briefly through a
+    pause and then holds. Options: ``q``, ``r``, ``gate_deg``, ``gate_factor``, ``silence_decay``.
+    """
+
+    def __init__(self, spec: str | None = None, q: float = 0.002, r: float = 0.05, gate_deg: float = 45.0,
+                 gate_factor: float = 10.0, silence_decay: float = 0.8, **options: Any) -> None:
+        super().__init__(spec, **options)
+        if min(q, r, gate_factor) <= 0:
+            raise ConfigError("srp-kalman-cv: q, r and gate_factor must be positive")
+        if not 0 <= silence_decay <= 1:
+            raise ConfigError(f"srp-kalman-cv: silence_decay must lie in [0, 1], got {silence_decay}")
+        self.q, self.r, self.gate_cos, self.gate_factor = q, r, np.cos(np.radians(gate_deg)), gate_factor
+        self.silence_decay = silence_decay
+        eye = np.eye(3)
+        self._f = np.block([[eye, eye], [np.zeros((3, 3)), eye]])
+        # white-acceleration process noise of a unit time step, per axis
+        self._qm = q * np.block([[eye / 3.0, eye / 2.0], [eye / 2.0, eye]])
+
+    @property
+    def receptive_field_frames(self) -> None:
+        return None  # a recursive filter remembers every past frame
+
+    def reset(self, array: MicArray, **context: Any) -> None:
+        super().reset(array, **context)
+        self._x = np.concatenate([_INITIAL_DIRECTION, np.zeros(3)])
+        self._p = np.eye(6)
+        self._initialised = False
+
+    def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        z = self._argmax_direction(observation["srp"])
+        if z is None:
+            self._x[3:] *= self.silence_decay
+        self._x = self._f @ self._x
+        self._p = self._f @ self._p @ self._f.T + self._qm
+        if z is not None:
+            if not self._initialised:
+                self._x = np.concatenate([z, np.zeros(3)])
+                self._p = np.diag([self.r] * 3 + [self.q * 10] * 3)
+                self._initialised = True
+            else:
+                u = self._x[:3] / max(np.linalg.norm(self._x[:3]), 1e-12)
+                r = self.r if float(z @ u) >= self.gate_cos else self.r * self.gate_factor
+                s = self._p[:3, :3] + r * np.eye(3)
+                gain = np.linalg.solve(s, self._p[:3, :]).T  # (6, 3) = P H^T S^-1 (S symmetric)
+                self._x = self._x + gain @ (z - self._x[:3])
+                self._p = self._p - gain @ self._p[:3, :]
+        u = self._x[:3] / max(np.linalg.norm(self._x[:3]), 1e-12)
+        self._x[:3] = u
+        self._x[3:] -= (self._x[3:] @ u) * u
+        return u.copy()
