@@ -227,7 +227,7 @@ def lag_curve(estimates: np.ndarray, truth: np.ndarray, vad: np.ndarray, frame_p
     use = np.asarray(vad, bool).copy()
     use[:first] = False
     if not use.any():
-        return {"lag_sse": [0.0] * len(lags), "lag_frames": 0, "lag_speed": float("nan")}
+        return {"lag_sse": [0.0] * len(lags), "lag_frames": 0, "lag_speed": None}
     delayed = delayed_truth(u, lags / frame_period_s)[:, use]  # (D, n, 3)
     errors = frame_errors_deg(np.broadcast_to(est[use], delayed.shape), delayed)  # (D, n)
     speed = angular_speed_deg(u, frame_period_s)[use]
@@ -239,7 +239,7 @@ def lag_from_curves(curves: Sequence[dict], max_lag_s: float = LAG_MAX_S,
                     step_s: float = LAG_STEP_S) -> tuple[float | None, str]:
     """The lag in seconds minimising the summed curves of the episodes whose truth moves, and a
     note: ``(lag, "")``, or ``(None, reason)`` when no episode has a defined lag."""
-    moving = [c for c in curves if c.get("lag_frames", 0) > 0 and np.isfinite(c.get("lag_speed", np.nan))
+    moving = [c for c in curves if c.get("lag_frames", 0) > 0 and c.get("lag_speed") is not None
               and c["lag_speed"] >= STATIC_SPEED_DEG_S]
     if not moving:
         if any(c.get("lag_frames", 0) > 0 for c in curves):

@@ -135,3 +135,41 @@ def test_paired_difference_ci_cancels_what_the_episodes_share() -> None:
     assert hi - lo < 0.5 * (own_hi - own_lo)  # far narrower than either tracker's own interval
     with pytest.raises(ValueError, match="same"):
         paired_difference_ci(sq, n, sq[:5], n[:5])
+
+
+def _arc_truth(n_frames: int, period_s: float, deg_per_s: float) -> np.ndarray:
+    from doabench.geometry import angles_to_unit
+
+    az = np.radians(deg_per_s * np.arange(n_frames) * period_s)
+    return angles_to_unit(np.full(n_frames, np.pi / 2), az)
+
+
+@pytest.mark.parametrize("delay_s", [0.0, 0.5, 1.25])
+def test_a_tracker_that_outputs_the_truth_late_is_measured_at_that_lag(delay_s):
+    from doabench.metrics import delayed_truth, motion_metrics
+
+    period = 0.192  # the paper's hop
+    truth = _arc_truth(150, period, 20.0)
+    late = delayed_truth(truth, np.array([delay_s / period]))[0]
+    late = np.where(np.isnan(late), truth[:1], late)
+    m = motion_metrics(late, truth, np.ones(150, bool), period)
+    assert m["lag_s"] == pytest.approx(delay_s)
+    assert m["lag_sse"][int(round(delay_s / 0.05))] == pytest.approx(0.0, abs=1e-12)
+    # every frame moves at 20 deg/s: all in the 15-30 band, with the error of a delay of delay_s
+    bands = m["speed_bands"]
+    assert bands["15-30"][1] == 150 and bands["<5"][1] == bands["5-15"][1] == bands[">30"][1] == 0
+    assert np.sqrt(bands["15-30"][0] / 150) <= 20.0 * delay_s + 1e-6
+
+
+def test_a_static_source_has_no_defined_lag_and_pooling_skips_it():
+    from doabench.metrics import lag_from_curves, motion_metrics
+
+    period = 0.192
+    still = np.repeat(_arc_truth(1, period, 0.0), 100, axis=0)
+    m = motion_metrics(still, still, np.ones(100, bool), period)
+    assert m["lag_s"] is None and "static" in m["lag_note"]
+    truth = _arc_truth(100, period, 30.0)
+    moving = motion_metrics(truth, truth, np.ones(100, bool), period)
+    assert lag_from_curves([m, moving]) == (0.0, "")
+    silent = motion_metrics(truth, truth, np.zeros(100, bool), period)
+    assert silent["lag_s"] is None and "voice-active" in silent["lag_note"]

@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 from doabench.envs.registry import get_task_spec
-from doabench.metrics import aggregate, bootstrap_ci, episode_metrics, pooled_from_rows
+from doabench.metrics import (aggregate, bootstrap_ci, episode_metrics, lag_from_curves, motion_metrics,
+                              pooled_from_rows, pooled_speed_bands)
 from doabench.trackers.base import Tracker
 
 RESULTS_SCHEMA = "doabench.results/1"
@@ -27,6 +28,23 @@ def scored_frames(ep: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return est, truth, vad
 
 
+def _motion(ep: dict[str, Any]) -> dict[str, Any]:
+    """Lag and angular-speed-band metrics of an episode (doabench.metrics) on its whole frame
+    sequence (the delayed truth needs evenly spaced frames), scoring the voice-active valid frames;
+    planar arrays folded as in :func:`scored_frames`."""
+    times = np.asarray(ep.get("times", ()), dtype=np.float64)
+    if len(times) < 2:
+        return {"lag_s": None, "lag_note": "fewer than two frames: no defined lag"}
+    period = float(np.median(np.diff(times)))
+    est, truth = np.asarray(ep["estimates"], np.float64), np.asarray(ep["truth"], np.float64)
+    if ep.get("planar"):
+        from doabench.arrays import fold_to_upper
+
+        est, truth = fold_to_upper(est), fold_to_upper(truth)
+    use = np.asarray(ep["vad"], bool) & np.asarray(ep.get("valid", np.ones(len(truth), bool)), bool)
+    return motion_metrics(est, truth, use, period)
+
+
 def episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
     """The per-episode row of the results (scene parameters, timings, metrics of the scored frames)."""
     meta = ep["metadata"]
@@ -39,7 +57,14 @@ def episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
     row["frames_scored"] = int(len(vad))
     row["frames_invalid"] = int(len(ep["vad"]) - len(vad))
     row.update(episode_metrics(est, truth, vad))
+    row.update(_motion(ep))
     return row
+
+
+def lag_summary(rows: list[dict]) -> dict[str, Any]:
+    """Pooled lag (s, or None with the reason) and RMSAE per angular-speed band of some rows."""
+    lag, note = lag_from_curves(rows)
+    return {"lag_s": lag, **({"lag_note": note} if note else {}), "speed_bands": pooled_speed_bands(rows)}
 
 
 def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
@@ -49,7 +74,7 @@ def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
         sub = [r for r in rows if r["task"] == task_id]
         if sub:
             cell = get_task_spec(task_id).params["cell"]
-            cells[task_id] = {"t60": cell["t60"], "snr": cell["snr"], **pooled_from_rows(sub)}
+            cells[task_id] = {"t60": cell["t60"], "snr": cell["snr"], **pooled_from_rows(sub), **lag_summary(sub)}
     return cells
 
 
@@ -68,6 +93,7 @@ def build_results(spec, tracker: Tracker, tracker_text: str, tracker_options, en
         "rmsae_nonsilent_ci95": bootstrap_ci(ci_input, "rmsae_nonsilent"),
         "pooled": agg["pooled"],
         "episode_mean": agg["episode_mean"],
+        **lag_summary(rows),
     }
     recording_rows = [r for r in rows if r.get("recording") is not None]
     if recording_rows:
