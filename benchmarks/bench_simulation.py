@@ -15,6 +15,10 @@ convolution per microphone, ``add_tail_convolution_``); "other" is the rest (val
 image enumeration, planning, copies).
 
     nice -n 10 .venv/bin/python benchmarks/bench_simulation.py --scenes 10 --pra-scenes 3 --threads 1
+
+``--family walk`` simulates walking talkers around a turned static array (sim-walk's scene
+model) and ``--family turn`` a walking talker heard by a moving, turning array (sim-turn's: one
+array pose per trajectory point, so the microphones differ per point).
 """
 from __future__ import annotations
 
@@ -37,6 +41,14 @@ STAGES = {  # stage -> (module, function name)
     "tail": [(engine, "tail_level"), (engine, "shared_tail")],
     "early conv": [(simulators, "convolve_trajectory")],
     "tail conv": [(simulators, "add_tail_convolution_")],
+}
+
+
+FAMILIES = {
+    "paper": {},
+    "walk": {"walk_p": 1.0, "array_yaw": (-180.0, 180.0), "array_pitch": (-30.0, 30.0), "array_roll": (-15.0, 15.0)},
+    "turn": {"walk_p": 1.0, "array_yaw": (-180.0, 180.0), "array_pitch": (-20.0, 20.0), "array_motion_p": 1.0,
+             "array_speed": (0.0, 0.3)},
 }
 
 
@@ -80,6 +92,9 @@ def main() -> None:
                     help="threads of each backend: torch's and pyroomacoustics' num_threads (default: "
                          "each library's own; the issue's protocol is one process, one thread)")
     ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--family", choices=sorted(FAMILIES), default="paper",
+                    help="scene model: the paper's trajectories (default), walking talkers (walk) or a walking "
+                         "talker and a moving, turning array (turn)")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -92,7 +107,7 @@ def main() -> None:
         pra_threads = pra.constants.get("num_threads")
 
     timer = StageTimer()
-    dist = SceneDistribution(p_static=0.0)
+    dist = SceneDistribution(p_static=0.0, **FAMILIES[args.family])
     scenes = [sample_scene(dist, args.seed + i) for i in range(args.scenes)]
     signal = np.random.default_rng(args.seed).standard_normal(int(dist.duration_s * dist.fs)).astype(np.float32)
     backends = {"builtin": get_simulator("builtin", device=args.device)}
@@ -101,8 +116,8 @@ def main() -> None:
 
     # warm-up (allocator, FFT plans) on a small problem
     sc = scenes[0]
-    backends["builtin"].simulate(sc.room, sc.trajectory[:4], sc.array_position + sc.mic_positions,
-                                 signal[:16000], dist.fs, seed=0)
+    warm_mics = sc.mic_room_positions[:4] if sc.moving_array else sc.mic_room_positions
+    backends["builtin"].simulate(sc.room, sc.trajectory[:4], warm_mics, signal[:16000], dist.fs, seed=0)
 
     cuda = backends["builtin"].device.type == "cuda"
     times: dict[str, list[float]] = {name: [] for name in backends}
@@ -112,7 +127,7 @@ def main() -> None:
     print(f"{'scene':>5} {'room (m)':>16} {'T60':>5} " + " ".join(f"{n:>16}" for n in backends))
     load_before = os.getloadavg()
     for i, sc in enumerate(scenes):
-        mics = sc.array_position + sc.mic_positions
+        mics = sc.mic_room_positions  # (M, 3), or (S, M, 3) for a moving array
         row = []
         for name, sim in backends.items():
             if name == "pyroomacoustics" and i >= args.pra_scenes:
@@ -129,7 +144,7 @@ def main() -> None:
                 st = timer.take()
                 st["other"] = dc - sum(st.values())
                 stages.append(st)
-            assert y.shape == (len(mics), len(signal)) and np.all(np.isfinite(y))
+            assert y.shape == (mics.shape[-2], len(signal)) and np.all(np.isfinite(y))
             times[name].append(dt)
             cpu[name].append(dc)
             row.append(f"{dt:>8.3f}s ({dc:.2f})")

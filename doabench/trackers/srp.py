@@ -117,7 +117,7 @@ class SrpKalmanCvTracker(_SrpGridTracker):
     pause and then holds. Options: ``q``, ``r``, ``gate_deg``, ``gate_factor``, ``silence_decay``.
     """
 
-    def __init__(self, spec: str | None = None, q: float = 0.002, r: float = 0.05, gate_deg: float = 45.0,
+    def __init__(self, spec: str | None = None, q: float = 0.01, r: float = 0.05, gate_deg: float = 45.0,
                  gate_factor: float = 10.0, silence_decay: float = 0.8, **options: Any) -> None:
         super().__init__(spec, **options)
         if min(q, r, gate_factor) <= 0:
