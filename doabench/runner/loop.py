@@ -26,6 +26,7 @@ from doabench.metrics import azimuth_errors_deg, frame_errors_deg
 from doabench.results.files import to_json
 from doabench.results.provenance import environment
 from doabench.runner.journal import append_record, config_hash, load_journal, run_lock
+from doabench.runner.episode_cache import cache_episodes
 from doabench.runner.summary import build_results, episode_row, scored_frames
 from doabench.trackers.base import Tracker
 from doabench.trackers.registry import make_tracker
@@ -179,6 +180,7 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     provenance = environment(device)  # taken before the work: the code that runs is the code recorded
     wall_start = time.perf_counter()
     env = make_env_for(tracker, task, device=device, delays=delays, **env_options)
+    cache_episodes(env)  # DOABENCH_EPISODE_CACHE: several trackers, one simulation per episode
     n_total = env.n_episodes
     if episodes is None:
         indices = list(range(n_total))
