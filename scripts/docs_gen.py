@@ -71,6 +71,8 @@ def _data_text(params: dict[str, Any]) -> str:
 
 
 def tasks_markdown() -> str:
+    from doabench.envs.simulated import speed_statistics
+
     tasks = builtin_tasks()
     cells = {k: s for k, s in tasks.items() if "cell" in s.params}
     main = {k: s for k, s in tasks.items() if k not in cells}
@@ -94,6 +96,11 @@ def tasks_markdown() -> str:
                   f"- run: `doabench run --tracker srp-max --task {task_id}`"
                   + (" --librispeech PATH" if (s.params.get("speech") or {}).get("corpus") == "librispeech" else "")
                   + (" --locata-root PATH" if s.kind == "locata" else "")]
+        if s.kind == "simulated":
+            st = speed_statistics(s)
+            lines += [f"- talker speed seen from the array (deg/s, over every trajectory point of every episode): "
+                      f"median {st['median']:.1f}, 10th-90th percentile {st['p10']:.1f}-{st['p90']:.1f}; median of "
+                      f"the episodes' medians {st['episode_median']:.1f}"]
         params = {k: v for k, v in dict(s.params).items() if k != "cells"}
         if "cells" in s.params:
             grid = dict(s.params.get("grid") or {})
