@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from doabench.errors import ConfigError, NotFoundError
-from doabench.geometry import SPEED_OF_SOUND
+from doabench.geometry import SPEED_OF_SOUND, fold_to_upper  # noqa: F401  (fold_to_upper: re-exported)
 
 # LOCATA "benchmark2" array (NAO robot head), microphone positions in the array frame, metres,
 # rounded to the millimetre. Source: H. W. Loellmann et al., "IEEE-AASP Challenge on Acoustic
@@ -52,13 +52,6 @@ def is_planar(positions: np.ndarray) -> bool:
     pos = np.asarray(positions, dtype=np.float64)
     aperture = float(np.linalg.norm(pos[:, None] - pos[None], axis=-1).max())
     return bool(np.ptp(pos[:, 2]) <= PLANAR_TOLERANCE * aperture)
-
-
-def fold_to_upper(directions: np.ndarray) -> np.ndarray:
-    """Mirror directions below the array plane onto it (z -> |z|): what a planar array scores against."""
-    d = np.array(directions, dtype=np.float64, copy=True)
-    d[..., 2] = np.abs(d[..., 2])
-    return d
 
 
 @dataclass(frozen=True)

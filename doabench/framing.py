@@ -83,6 +83,27 @@ def frame_vad(sample_vad, window: int, hop: int):
     return frames.mean(-1) > ACTIVE_FRACTION
 
 
+def samples_from_frame_vad(frame_active, n_samples: int, window: int, hop: int) -> np.ndarray:
+    """A per-sample VAD ``(n_samples,)`` bool whose :func:`frame_vad` is ``frame_active`` ``(T,)``:
+    a sample is active when any frame covering it is. Exact when an inactive frame cannot collect
+    more than 2/3 active samples from its neighbours (``hop >= 2K/3``; the default 3K/4 is);
+    otherwise, or when ``T`` is not the frame count of ``n_samples``, a ConfigError. What
+    ``doabench track --vad truth`` feeds the features from a truth table's per-frame vad column."""
+    from doabench.errors import ConfigError
+
+    active = np.asarray(frame_active, bool).reshape(-1)
+    if len(active) != n_frames(n_samples, window, hop):
+        raise ConfigError(f"{len(active)} frame VAD values for {n_samples} samples; the frames (K = {window}, "
+                          f"hop {hop}) number {n_frames(n_samples, window, hop)}")
+    out = np.zeros(n_samples, bool)
+    for t in np.flatnonzero(active):
+        out[t * hop:t * hop + window] = True
+    if not np.array_equal(frame_vad(out, window, hop), active):
+        raise ConfigError(f"frames with K = {window} and hop {hop} overlap too much for a per-frame VAD to be "
+                          "turned into per-sample activity exactly (needs hop >= 2K/3)")
+    return out
+
+
 def frame_mean_directions(sample_dirs: np.ndarray, window: int, hop: int) -> np.ndarray:
     """Per-sample direction unit vectors ``(..., samples, 3)`` -> per-frame ``(..., frames, 3)``.
 

@@ -118,6 +118,13 @@ def great_circle_error(u: ArrayLike, v: ArrayLike) -> ArrayLike:
     return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.sum(u * v, axis=-1))
 
 
+def fold_to_upper(directions: np.ndarray) -> np.ndarray:
+    """Mirror directions below the array plane onto it (z -> |z|): what a planar array scores against."""
+    d = np.array(directions, dtype=np.float64, copy=True)
+    d[..., 2] = np.abs(d[..., 2])
+    return d
+
+
 def wrap_angle(a: ArrayLike) -> ArrayLike:
     """Wrap radians to ``[-pi, pi)``."""
     return (a + math.pi) % (2 * math.pi) - math.pi

@@ -10,6 +10,13 @@ Definitions (all angles reported in degrees):
 * ``azimuth_mae``: mean wrapped azimuth error ``|wrap(az_est - az_true)|`` over voice-active frames,
   the LOCATA challenge's azimuth metric.
 
+Which frames are scored, and how (:func:`score_frames`, the one place every score goes through:
+``doabench run``, ``doabench track --truth``, the trainer's validation and the scripts): frames
+whose truth is invalid (LOCATA ``valid_flag = 0``) are left out; for a planar array estimate and
+truth are both mirror-folded onto the upper half-space (the array cannot tell a direction from its
+mirror image); every remaining frame counts in ``rmsae_all`` and the voice-active ones in the
+non-silent metrics.
+
 Aggregation over episodes comes in two labelled flavours: ``pooled`` (all frames of all episodes
 in one pool, the paper's way) and ``episode_mean`` (the mean of per-episode values).
 
@@ -29,11 +36,13 @@ episode keeps the summed squared errors and frame counts per band, pooled exactl
 """
 from __future__ import annotations
 
-from typing import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from doabench.geometry import angular_speed_deg, great_circle_error, normalize, unit_to_angles, wrap_angle
+from doabench.geometry import (angular_speed_deg, fold_to_upper, great_circle_error, normalize, unit_to_angles,
+                               wrap_angle)
 
 THRESHOLDS_DEG = (5, 10, 20, 30)
 LAG_MAX_S = 2.0
@@ -88,6 +97,71 @@ def error_summary(errors: np.ndarray, vad: np.ndarray, az_errors: np.ndarray | N
 def episode_metrics(estimates: np.ndarray, truth: np.ndarray, vad: np.ndarray) -> dict[str, float]:
     """Metrics of one episode from ``estimates (T, 3)``, ``truth (T, 3)``, ``vad (T,)``."""
     return error_summary(frame_errors_deg(estimates, truth), vad, azimuth_errors_deg(estimates, truth))
+
+
+@dataclass(frozen=True)
+class ScoredFrames:
+    """An episode's frames as every score sees them (:func:`score_frames`)."""
+
+    #: ``(T,)`` bool: which of the episode's frames are scored (truth valid)
+    keep: np.ndarray
+    #: ``(n, 3)`` estimates and truth of the scored frames, mirror-folded for a planar array
+    estimates: np.ndarray
+    truth: np.ndarray
+    #: ``(n,)`` bool voice activity of the scored frames
+    vad: np.ndarray
+    #: ``(n,)`` great-circle and wrapped azimuth errors in degrees
+    errors: np.ndarray
+    az_errors: np.ndarray
+
+    @property
+    def n_invalid(self) -> int:
+        """Frames left out because their truth is invalid."""
+        return int(self.keep.size - self.keep.sum())
+
+    def summary(self) -> dict[str, float]:
+        """:func:`error_summary` of the scored frames (RMSAE all / non-silent, MAE, ...)."""
+        return error_summary(self.errors, self.vad, self.az_errors)
+
+
+def score_frames(estimates: np.ndarray, truth: np.ndarray, vad: np.ndarray, valid: np.ndarray | None = None,
+                 planar: bool = False) -> ScoredFrames:
+    """The scored frames of one episode: ``estimates``, ``truth`` ``(T, 3)``, ``vad`` ``(T,)``,
+    ``valid`` ``(T,)`` (None: every frame's truth is valid), ``planar``: the array is planar.
+
+    Frames with invalid truth are left out; for a planar array estimate and truth are folded onto
+    the upper half-space (module docstring). The one scoring rule of doabench."""
+    est = np.asarray(estimates, np.float64).reshape(-1, 3)
+    tru = np.asarray(truth, np.float64).reshape(-1, 3)
+    active = np.asarray(vad, bool).reshape(-1)
+    if not (len(est) == len(tru) == len(active)):
+        raise ValueError(f"score_frames: {len(est)} estimates, {len(tru)} truth rows and {len(active)} vad values")
+    keep = np.ones(len(active), bool) if valid is None else np.asarray(valid, bool).reshape(-1)
+    est, tru, active = est[keep], tru[keep], active[keep]
+    if planar:
+        est, tru = fold_to_upper(est), fold_to_upper(tru)
+    return ScoredFrames(keep, est, tru, active, frame_errors_deg(est, tru), azimuth_errors_deg(est, tru))
+
+
+def score_episode(estimates: np.ndarray, truth: np.ndarray, vad: np.ndarray, valid: np.ndarray | None = None,
+                  planar: bool = False, times: np.ndarray | None = None) -> dict[str, Any]:
+    """Every per-episode metric under the rules of :func:`score_frames`: ``frames_scored``,
+    ``frames_invalid``, :func:`error_summary`'s metrics, then the lag and angular-speed bands
+    (:func:`motion_metrics`, which need the evenly spaced frame ``times`` ``(T,)``; the whole
+    sequence is kept for the delayed truth, the voice-active valid frames are scored)."""
+    scored = score_frames(estimates, truth, vad, valid, planar)
+    out: dict[str, Any] = {"frames_scored": int(scored.keep.sum()), "frames_invalid": scored.n_invalid,
+                           **scored.summary()}
+    t = np.asarray(times if times is not None else (), np.float64)
+    if len(t) < 2:
+        out.update({"lag_s": None, "lag_note": "fewer than two frames: no defined lag"})
+        return out
+    est, tru = np.asarray(estimates, np.float64), np.asarray(truth, np.float64)
+    if planar:
+        est, tru = fold_to_upper(est), fold_to_upper(tru)
+    use = np.asarray(vad, bool) & scored.keep
+    out.update(motion_metrics(est, tru, use, float(np.median(np.diff(t)))))
+    return out
 
 
 def aggregate(per_frame: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],

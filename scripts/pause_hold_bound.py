@@ -27,19 +27,18 @@ def _unit(a) -> np.ndarray:
     return a / np.linalg.norm(a, axis=-1, keepdims=True)
 
 
-def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Great-circle angle between unit vectors ``(..., 3)``, degrees."""
-    return np.degrees(np.arccos(np.clip((a * b).sum(-1), -1.0, 1.0)))
+def hold_last_voiced(truth: np.ndarray, vad: np.ndarray, valid: np.ndarray | None = None,
+                     planar: bool = False) -> np.ndarray:
+    """Per-frame error ``(scored frames,)`` of holding the true direction of the last voice-active
+    frame (90° before the first one), scored as ``doabench run`` scores (invalid truth left out,
+    planar arrays folded). ``truth`` ``(frames, 3)`` unit vectors, ``vad`` ``(frames,)``."""
+    from doabench.metrics import score_frames
 
-
-def hold_last_voiced(truth: np.ndarray, vad: np.ndarray) -> np.ndarray:
-    """Per-frame error ``(frames,)`` of holding the true direction of the last voice-active frame
-    (90° before the first one). ``truth`` ``(frames, 3)`` unit vectors, ``vad`` ``(frames,)``."""
     idx = np.where(vad, np.arange(len(vad)), -1)
     last = np.maximum.accumulate(idx)  # index of the last voice-active frame so far, -1 before any
-    err = np.full(len(vad), 90.0)
-    ok = last >= 0
-    err[ok] = angle_deg(truth[last[ok]], truth[ok])
+    scored = score_frames(truth[np.maximum(last, 0)], truth, vad, valid, planar)
+    err = scored.errors.copy()
+    err[(last < 0)[scored.keep]] = 90.0
     return err
 
 
@@ -47,6 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", nargs="+", type=Path, help="results JSON files with per-frame estimates")
     args = ap.parse_args(argv)
+    from doabench.metrics import score_frames
+
     print("| results file | tracker RMSAE all | tracker RMSAE non-silent | hold-the-truth oracle RMSAE all |")
     print("|---|---|---|---|")
     rms = lambda parts: float(np.sqrt(np.mean(np.concatenate(parts) ** 2)))  # noqa: E731
@@ -60,13 +61,14 @@ def main(argv: list[str] | None = None) -> int:
         if not r.get("frames"):
             print(f"error: {path} has no per-frame estimates (written with --no-frames?)", file=sys.stderr)
             return 2
+        planar = bool((r.get("scoring") or {}).get("planar_fold"))
         errs, voiced, oracle = [], [], []
         for fr in r["frames"]:
             truth, vad = _unit(fr["truth"]), np.asarray(fr["vad"], dtype=bool)
-            e = angle_deg(_unit(fr["estimates"]), truth)
-            errs.append(e)
-            voiced.append(e[vad])
-            oracle.append(hold_last_voiced(truth, vad))
+            scored = score_frames(_unit(fr["estimates"]), truth, vad, fr.get("valid"), planar)
+            errs.append(scored.errors)
+            voiced.append(scored.errors[scored.vad])
+            oracle.append(hold_last_voiced(truth, vad, fr.get("valid"), planar))
         print(f"| {path.name} | {rms(errs):.2f} | {rms(voiced):.2f} | {rms(oracle):.2f} |")
         for whole, part in zip(pooled, (errs, voiced, oracle)):
             whole.extend(part)

@@ -45,22 +45,26 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     from doabench import hold_in_silences
+    from doabench.metrics import score_frames
 
     if args.results is not None:
-        name, outputs, truths, vads = _from_results(args.results)
+        name, outputs, truths, vads, valids, planar = _from_results(args.results)
     else:
         name = f"{args.tracker} on the {args.task} validation set"
-        outputs, truths, vads = _from_validation(args)
+        outputs, truths, vads, valids, planar = _from_validation(args)
 
     def errors(directions: list[np.ndarray]) -> np.ndarray:
-        return np.concatenate([np.degrees(np.arccos(np.clip((d * t).sum(-1), -1.0, 1.0)))
-                               for d, t in zip(directions, truths)])
+        # doabench run's scoring: invalid truth left out, planar arrays folded
+        return np.concatenate([score_frames(d, t, v, ok, planar).errors
+                               for d, t, v, ok in zip(directions, truths, vads, valids)])
 
     def rms(e: np.ndarray) -> float:
         return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
 
     e = errors(outputs)
-    since = np.concatenate([frames_since_voice(v) for v in vads])
+    # counted over the whole sequence (an invalid frame does not end a silence), then scored frames only
+    since = np.concatenate([frames_since_voice(v)[np.ones(len(v), bool) if ok is None else np.asarray(ok, bool)]
+                            for v, ok in zip(vads, valids)])
     total = float(np.sum(e**2))
     print(f"{name} ({len(vads)} trajectories, {e.size} frames): "
           f"all {rms(e):.2f} deg, non-silent {rms(e[since == 0]):.2f} deg")
@@ -84,22 +88,25 @@ def _unit(a) -> np.ndarray:
     return a / np.linalg.norm(a, axis=-1, keepdims=True)
 
 
-def _from_results(paths: list[Path]) -> tuple[str, list, list, list]:
+def _from_results(paths: list[Path]) -> tuple[str, list, list, list, list, bool]:
     import json
 
-    names, frames = [], []
+    names, frames, planar = [], [], set()
     for path in paths:
         r = json.loads(path.read_text())
         if not r.get("frames"):
             raise SystemExit(f"error: {path} has no per-frame estimates (written with --no-frames?)")
         frames += r["frames"]
+        planar.add(bool((r.get("scoring") or {}).get("planar_fold")))
         names.append(f"{r['tracker']['id']} on {r['task']['id']} v{r['task']['version']}")
+    if len(planar) > 1:
+        raise SystemExit("error: the results files mix planar and non-planar arrays; score them apart")
     name = names[0] if len(names) == 1 else f"{names[0]} and {len(names) - 1} more results files"
     return (name, [_unit(f["estimates"]) for f in frames], [_unit(f["truth"]) for f in frames],
-            [np.asarray(f["vad"], bool) for f in frames])
+            [np.asarray(f["vad"], bool) for f in frames], [f.get("valid") for f in frames], planar.pop())
 
 
-def _from_validation(args: argparse.Namespace) -> tuple[list, list, list]:
+def _from_validation(args: argparse.Namespace) -> tuple[list, list, list, list, bool]:
     from doabench.training.recipes import get_recipe
     from doabench.training.trainer import Trainer, TrainOptions
 
@@ -119,7 +126,9 @@ def _from_validation(args: argparse.Namespace) -> tuple[list, list, list]:
             outputs += list(y.double().numpy())
             truths += list(truth.double().numpy())
             vads += list(vad.numpy().astype(bool))
-    return outputs, truths, vads
+    from doabench.arrays import get_array
+
+    return outputs, truths, vads, [None] * len(vads), get_array(trainer.spec.array).planar
 
 
 if __name__ == "__main__":

@@ -335,8 +335,7 @@ def test_planar_arrays_are_detected_and_scored_against_folded_truth(tmp_path):
     import json
 
     from doabench.arrays import MicArray, load_array_file
-    from doabench.runner.summary import scored_frames
-    from doabench.metrics import episode_metrics
+    from doabench.metrics import score_frames
 
     ring = [[0.05 * np.cos(a), 0.05 * np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)]
     assert MicArray("ring", np.array(ring)).planar  # no flag needed
@@ -348,7 +347,6 @@ def test_planar_arrays_are_detected_and_scored_against_folded_truth(tmp_path):
     # A truth below the plane and its mirror image as the estimate: no error for a planar array.
     truth = np.array([[0.6, 0.0, -0.8], [0.0, 1.0, 0.0]])
     est = np.array([[0.6, 0.0, 0.8], [0.0, 1.0, 0.0]])
-    ep = {"estimates": est, "truth": truth, "vad": np.ones(2, bool), "valid": np.ones(2, bool), "planar": True}
-    assert episode_metrics(*scored_frames(ep))["rmsae_all"] == pytest.approx(0.0, abs=1e-6)
-    ep["planar"] = False
-    assert episode_metrics(*scored_frames(ep))["rmsae_all"] > 50
+    vad, valid = np.ones(2, bool), np.ones(2, bool)
+    assert score_frames(est, truth, vad, valid, planar=True).summary()["rmsae_all"] == pytest.approx(0.0, abs=1e-6)
+    assert score_frames(est, truth, vad, valid, planar=False).summary()["rmsae_all"] > 50

@@ -144,7 +144,7 @@ def test_track_scores_against_the_truth_that_simulate_writes(scene_dir, tmp_path
     truth.iloc[:-2].to_csv(bad, index=False)
     assert main(["track", str(scene_dir / "audio.wav"), "--truth", str(bad), "--out", str(tmp_path / "x.csv")]) == 2
     err = capsys.readouterr().err.strip()
-    assert "frames but the tracker produced" in err and "\n" not in err
+    assert "frames but the tracker makes" in err and "\n" not in err
     assert not (tmp_path / "x.csv").exists()
 
 

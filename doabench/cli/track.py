@@ -22,15 +22,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--array", default="nao", help="built-in array name or JSON/YAML array file (default: nao)")
     add_tracker_options(p, required=False, default="srp-max")
     p.add_argument("--delays", choices=["nearest", "exact"], default="nearest")
-    p.add_argument("--vad", choices=["webrtc", "none"], default="webrtc",
-                   help="frame voice activity: WebRTC VAD on the channel mean (default) or every frame active")
+    p.add_argument("--vad", choices=["webrtc", "none", "truth"], default="webrtc",
+                   help="frame voice activity: WebRTC VAD on the channel mean (default), every frame active, or "
+                        "truth: the vad column of --truth (as `doabench run` uses the scene's VAD, so a "
+                        "`doabench simulate --task T --episode N` recording scores as that episode of the run)")
     p.add_argument("--resample", action="store_true", help="resample a recording at another rate (anti-aliased)")
     p.add_argument("--device", default=None)
     p.add_argument("--out", required=True, help="output CSV")
     p.add_argument("--plot", help="also draw azimuth and elevation over time into this PNG/PDF")
     p.add_argument("--truth", metavar="truth.csv",
                    help="score against a truth table (as `doabench simulate` writes: time_s, ..., x, y, z, vad per "
-                        "frame): prints the RMSAE, adds an error_deg column and draws the truth in --plot")
+                        "frame; an optional valid column leaves frames with invalid truth unscored), as `doabench "
+                        "run` scores (planar arrays folded): prints the RMSAE and lag, adds an error_deg column "
+                        "and draws the truth in --plot")
     p.set_defaults(func=main)
 
 
@@ -60,7 +64,8 @@ def check_plot_path(path: str | Path) -> None:
 
 
 def read_truth(path: str | Path, n_frames: int, times: np.ndarray) -> dict[str, np.ndarray]:
-    """A per-frame truth table (``doabench simulate``'s truth.csv): directions ``(T, 3)`` and vad."""
+    """A per-frame truth table (``doabench simulate``'s truth.csv): directions ``(T, 3)``, vad and
+    valid ``(T,)`` (every frame valid without a ``valid`` column)."""
     import pandas as pd
 
     from doabench.errors import InputError
@@ -76,7 +81,7 @@ def read_truth(path: str | Path, n_frames: int, times: np.ndarray) -> dict[str, 
         raise InputError(f"--truth {path} lacks column(s) {', '.join(missing)} (expected time_s, elevation_deg, "
                          "azimuth_deg, x, y, z, vad as `doabench simulate` writes)")
     if len(table) != n_frames:
-        raise InputError(f"--truth {path} has {len(table)} frames but the tracker produced {n_frames} "
+        raise InputError(f"--truth {path} has {len(table)} frames but the tracker makes {n_frames} of the recording "
                          "(the truth must be on the tracker's frame grid, K = 4096 and hop 3072 at 16 kHz)")
     if "time_s" in table.columns and not np.allclose(table["time_s"].to_numpy(float), times, atol=1e-3):
         raise InputError(f"--truth {path}: its frame times differ from the tracker's (another frame spec?)")
@@ -85,7 +90,19 @@ def read_truth(path: str | Path, n_frames: int, times: np.ndarray) -> dict[str, 
     if not np.all(np.isfinite(d)) or np.any(norms == 0):
         raise InputError(f"--truth {path}: x, y, z must be finite, non-zero directions")
     vad = table["vad"].to_numpy().astype(bool) if "vad" in table.columns else np.ones(len(table), bool)
-    return {"directions": d / norms[:, None], "vad": vad}
+    valid = table["valid"].to_numpy().astype(bool) if "valid" in table.columns else np.ones(len(table), bool)
+    return {"directions": d / norms[:, None], "vad": vad, "valid": valid, "has_vad": "vad" in table.columns}
+
+
+def score_line(path: str | Path, m: dict, planar: bool) -> str:
+    """What ``track --truth`` prints: the metrics of :func:`doabench.metrics.score_episode`."""
+    lag = "-" if m.get("lag_s") is None else f"{m['lag_s']:.2f} s"
+    notes = [f"{m['frames_invalid']} frames with invalid truth not scored"] if m.get("frames_invalid") else []
+    if planar:
+        notes.append("planar array: scored against mirror-folded truth")
+    return (f"scored against {path}: RMSAE {m['rmsae_all']:.2f} deg all frames, {m['rmsae_nonsilent']:.2f} deg "
+            f"non-silent (truth's vad); MAE {m['mae']:.2f}, median {m['median']:.2f}; lag {lag}"
+            + (f" ({m['lag_note']})" if m.get("lag_note") else "") + ("; " + "; ".join(notes) if notes else ""))
 
 
 def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad: np.ndarray, title: str,
@@ -140,12 +157,14 @@ def main(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, [args.recording, args.array, args.out, args.truth], "--plot")
         check_plot_path(args.plot)
+    from doabench.errors import InputError
+
     if args.truth:
         check_output_file(args.out, [args.truth], "--out")
         if not Path(args.truth).is_file():
-            from doabench.errors import InputError
-
             raise InputError(f"--truth {args.truth} does not exist")
+    if args.vad == "truth" and not args.truth:
+        raise InputError("--vad truth takes the voice activity from --truth's vad column; give --truth truth.csv")
     # An untrained learned model is refused unless weights=random.
     tracker = make_checked_tracker(args.tracker, parse_options(args.tracker_opt))
     from doabench.runner import recordings
@@ -154,22 +173,36 @@ def main(args: argparse.Namespace) -> int:
     spec = tracker.frame_spec
     # Read block by block (never the whole recording): memory does not grow with its length.
     rec = open_recording(args.recording, array, spec.fs, args.resample, min_samples=spec.window)
-    chunks, silent = recordings.recording_chunks(rec, args.vad)
+    truth = None
+    if args.truth:  # checked against the tracker's frames before the work
+        n = spec.n_frames(rec.samples)
+        truth = read_truth(args.truth, n, spec.times(n))
+    sample_vad = None
+    if args.vad == "truth":
+        from doabench.framing import samples_from_frame_vad
+
+        if not truth["has_vad"]:
+            raise InputError(f"--vad truth: {args.truth} has no vad column")
+        sample_vad = samples_from_frame_vad(truth["vad"], rec.samples, spec.window, spec.hop)
+    chunks, silent = recordings.recording_chunks(rec, args.vad, sample_vad=sample_vad)
     out = recordings.track_stream(tracker, array, chunks, args.delays, args.device)
     if silent or not out["vad"].any():
-        why = "the recording is digital silence (all samples zero)" if silent else "the VAD found no speech"
+        why = ("the recording is digital silence (all samples zero)" if silent else
+               "the truth's vad column has no active frame" if args.vad == "truth" else "the VAD found no speech")
         print(f"doabench track: warning: no frame was voice-active ({why}); the directions of silent frames "
               "carry no information (see the vad column)", file=sys.stderr)
     table = track_table(out)
-    truth = None
-    if args.truth:
-        from doabench.metrics import episode_metrics, frame_errors_deg
+    if truth is not None:
+        from doabench.metrics import score_episode, score_frames
 
-        truth = read_truth(args.truth, len(table), out["times"])
-        table["error_deg"] = frame_errors_deg(out["directions"], truth["directions"])
-        m = episode_metrics(out["directions"], truth["directions"], truth["vad"])
-        print(f"scored against {args.truth}: RMSAE {m['rmsae_all']:.2f} deg all frames, "
-              f"{m['rmsae_nonsilent']:.2f} deg non-silent (truth's vad); MAE {m['mae']:.2f}, median {m['median']:.2f}")
+        # doabench run's scoring (doabench.metrics): invalid truth unscored, planar arrays folded
+        scored = score_frames(out["directions"], truth["directions"], truth["vad"], truth["valid"], array.planar)
+        errors = np.full(len(table), np.nan)
+        errors[scored.keep] = scored.errors
+        table["error_deg"] = errors
+        m = score_episode(out["directions"], truth["directions"], truth["vad"], truth["valid"], array.planar,
+                          out["times"])
+        print(score_line(args.truth, m, array.planar))
     with atomic_path(args.out) as tmp:
         table.to_csv(tmp, index=False, float_format="%.4f")
     print(f"wrote {args.out}: {len(table)} frames from {args.recording} with {args.tracker}")

@@ -22,12 +22,11 @@ from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
 from doabench.errors import ConfigError, DoabenchError, TrackerError
 from doabench.geometry import normalize
-from doabench.metrics import azimuth_errors_deg, frame_errors_deg
 from doabench.results.files import to_json
 from doabench.results.provenance import environment
 from doabench.runner.journal import append_record, config_hash, load_journal, run_lock
 from doabench.runner.episode_cache import cache_episodes
-from doabench.runner.summary import build_results, episode_row, scored_frames
+from doabench.runner.summary import build_results, episode_row, score
 from doabench.trackers.base import Tracker
 from doabench.trackers.registry import make_tracker
 
@@ -218,9 +217,9 @@ def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep
         if index in done:
             continue
         ep = run_episode(env, tracker, index)
-        est, truth, vad = scored_frames(ep)
-        record = {"row": episode_row(index, ep), "errors": frame_errors_deg(est, truth),
-                  "az_errors": azimuth_errors_deg(est, truth), "vad": vad, "planar": ep["planar"]}
+        scored = score(ep)
+        record = {"row": episode_row(index, ep), "errors": scored.errors, "az_errors": scored.az_errors,
+                  "vad": scored.vad, "planar": ep["planar"]}
         if keep_frames:
             record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"],
                                 "vad": ep["vad"]}

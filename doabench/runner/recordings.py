@@ -88,12 +88,14 @@ def track_stream(tracker, array, chunks, delays: str = "nearest", device: str | 
     return {"times": spec.times(n), "directions": out, "vad": vad_all.astype(bool)}
 
 
-def recording_chunks(rec, vad: str, block: int | None = None):
+def recording_chunks(rec, vad: str, block: int | None = None, sample_vad: np.ndarray | None = None):
     """``(chunks, silent)`` for :func:`track_stream` from a :class:`~doabench.recording.Recording`.
 
     The recording is read block by block (up to three times: silence and peak, the WebRTC VAD,
     the features), never held whole; the chunks equal ``(audio, sample VAD)`` as ``main``
     computed them offline (digital silence: no sample active whatever ``vad`` says).
+    ``sample_vad`` ``(rec.samples,)``: a given per-sample VAD (``vad="truth"``, from a truth
+    table's frames) used as it is, silence or not, as ``doabench run`` uses the scene's.
     """
     from doabench.recording import BLOCK_SAMPLES, StreamingWebrtcVad
 
@@ -101,10 +103,10 @@ def recording_chunks(rec, vad: str, block: int | None = None):
     silent, peak = True, 0.0
     for x in rec.blocks(block):
         silent = silent and not np.any(x)
-        if vad == "webrtc":
+        if vad == "webrtc" and sample_vad is None:
             peak = max(peak, float(np.max(np.abs(x.mean(0)))))
     decisions = stream = None
-    if not silent and vad == "webrtc":
+    if not silent and vad == "webrtc" and sample_vad is None:
         stream = StreamingWebrtcVad(rec.fs, peak or 1.0)
         for x in rec.blocks(block):
             stream.push(x)
@@ -114,7 +116,9 @@ def recording_chunks(rec, vad: str, block: int | None = None):
         start = 0
         for x in rec.blocks(block):
             n = x.shape[-1]
-            if silent:
+            if sample_vad is not None:
+                v = np.asarray(sample_vad[start:start + n], bool)
+            elif silent:
                 v = np.zeros(n, bool)
             else:
                 v = None if stream is None else stream.sample_vad(decisions, start, n)

@@ -8,56 +8,30 @@ from typing import Any
 import numpy as np
 
 from doabench.envs.registry import get_task_spec
-from doabench.metrics import (aggregate, bootstrap_ci, episode_metrics, lag_from_curves, motion_metrics,
-                              pooled_from_rows, pooled_speed_bands)
+from doabench.metrics import (ScoredFrames, aggregate, bootstrap_ci, lag_from_curves, pooled_from_rows,
+                              pooled_speed_bands, score_episode, score_frames)
 from doabench.trackers.base import Tracker
 
 RESULTS_SCHEMA = "doabench.results/1"
 
 
-def scored_frames(ep: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(estimates, truth, vad)`` of the frames that are scored: frames whose truth is invalid
-    (LOCATA ``valid_flag = 0``) are left out; for a planar array both estimate and truth are
-    mirror-folded onto the upper half-space (the array cannot tell a direction from its mirror)."""
-    keep = np.asarray(ep.get("valid", np.ones(len(ep["vad"]), bool)), dtype=bool)
-    est, truth, vad = ep["estimates"][keep], ep["truth"][keep], np.asarray(ep["vad"], bool)[keep]
-    if ep.get("planar"):
-        from doabench.arrays import fold_to_upper
-
-        est, truth = fold_to_upper(est), fold_to_upper(truth)
-    return est, truth, vad
-
-
-def _motion(ep: dict[str, Any]) -> dict[str, Any]:
-    """Lag and angular-speed-band metrics of an episode (doabench.metrics) on its whole frame
-    sequence (the delayed truth needs evenly spaced frames), scoring the voice-active valid frames;
-    planar arrays folded as in :func:`scored_frames`."""
-    times = np.asarray(ep.get("times", ()), dtype=np.float64)
-    if len(times) < 2:
-        return {"lag_s": None, "lag_note": "fewer than two frames: no defined lag"}
-    period = float(np.median(np.diff(times)))
-    est, truth = np.asarray(ep["estimates"], np.float64), np.asarray(ep["truth"], np.float64)
-    if ep.get("planar"):
-        from doabench.arrays import fold_to_upper
-
-        est, truth = fold_to_upper(est), fold_to_upper(truth)
-    use = np.asarray(ep["vad"], bool) & np.asarray(ep.get("valid", np.ones(len(truth), bool)), bool)
-    return motion_metrics(est, truth, use, period)
+def score(ep: dict[str, Any]) -> ScoredFrames:
+    """The scored frames of an episode record of the loop (:func:`doabench.metrics.score_frames`:
+    invalid truth left out, planar arrays folded)."""
+    return score_frames(ep["estimates"], ep["truth"], ep["vad"], ep.get("valid"), bool(ep.get("planar")))
 
 
 def episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
-    """The per-episode row of the results (scene parameters, timings, metrics of the scored frames)."""
+    """The per-episode row of the results (scene parameters, timings, metrics of the scored frames:
+    :func:`doabench.metrics.score_episode`)."""
     meta = ep["metadata"]
     scene = meta.get("scene", {}) if isinstance(meta.get("scene"), dict) else {}
     room = scene.get("room", {}) if isinstance(scene.get("room"), dict) else {}
     row = {"episode": index, "task": meta.get("task"), "seed": meta.get("seed"),
            "t60": room.get("t60", meta.get("t60")), "snr": scene.get("snr_db", meta.get("snr")),
            "recording": meta.get("recording"), "audio_s": ep["audio_s"], "tracker_s": ep["tracker_s"]}
-    est, truth, vad = scored_frames(ep)
-    row["frames_scored"] = int(len(vad))
-    row["frames_invalid"] = int(len(ep["vad"]) - len(vad))
-    row.update(episode_metrics(est, truth, vad))
-    row.update(_motion(ep))
+    row.update(score_episode(ep["estimates"], ep["truth"], ep["vad"], ep.get("valid"), bool(ep.get("planar")),
+                             ep.get("times")))
     return row
 
 

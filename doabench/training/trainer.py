@@ -25,7 +25,6 @@ import torch
 from torch.utils.data import DataLoader
 
 from doabench.errors import ConfigError, NotFoundError
-from doabench.geometry import great_circle_error
 from doabench.results.files import atomic_path, write_json, write_text
 from doabench.trackers.hold import held_frame_index
 from doabench.training import checkpoint as ckpt
@@ -141,11 +140,6 @@ def _one_thread_worker(_: int) -> None:
     # Each worker simulates and extracts features on one core; two threads per process on a
     # 2-core machine made every process wait for the others' spinning OpenMP threads.
     torch.set_num_threads(1)
-
-def angular_errors_deg(estimates: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
-    """Great-circle angle in degrees between ``(..., 3)`` vectors (any length) and the truth
-    (:func:`doabench.geometry.great_circle_error`, the metric every score uses)."""
-    return torch.rad2deg(great_circle_error(estimates, truth))
 
 
 class Trainer:
@@ -397,23 +391,34 @@ class Trainer:
 
     @torch.no_grad()
     def validate(self, val: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]) -> dict[str, float]:
+        from doabench.arrays import get_array
+        from doabench.metrics import score_frames
+
         self.network.eval()
-        losses, errors, held, active = [], [], [], []
+        losses, outputs, held, truths, active = [], [], [], [], []
         for x, truth, vad in val:
             x, truth = self._to_device(x), truth.to(self.device)
             y = self.forward(x, truth).cpu()  # (B, T, 3)
             truth = truth.cpu()
             losses.append(torch.nn.functional.mse_loss(y, truth, reduction="none").mean(-1).flatten())
-            errors.append(angular_errors_deg(y, truth).flatten())
+            outputs.append(y.reshape(-1, 3))
             if self.hold_frames is not None:
                 index = torch.from_numpy(held_frame_index(vad.numpy(), self.hold_frames))  # (B, T)
-                y = torch.gather(y, 1, index[..., None].expand_as(y))
-                held.append(angular_errors_deg(y, truth).flatten())
+                held.append(torch.gather(y, 1, index[..., None].expand_as(y)).reshape(-1, 3))
+            truths.append(truth.reshape(-1, 3))
             active.append(vad.flatten())
-        e, a = torch.cat(errors), torch.cat(active)
-        rms = lambda v: float(torch.sqrt(torch.mean(v**2))) if v.numel() else math.nan  # noqa: E731
-        return {"val_loss": float(torch.cat(losses).mean()), "val_rmsae_all": rms(e), "val_rmsae_nonsilent": rms(e[a]),
-                "val_rmsae_held": rms(torch.cat(held)) if held else rms(e)}
+        # Scored as `doabench run` scores an episode (doabench.metrics.score_frames: planar folding,
+        # silent frames in the all-frames RMSAE only), so the log's numbers mean what the results' do.
+        t, a = torch.cat(truths).double().numpy(), torch.cat(active).numpy().astype(bool)
+        planar = get_array(self.spec.array).planar
+
+        def scored(y: list[torch.Tensor]) -> dict[str, float]:
+            return score_frames(torch.cat(y).double().numpy(), t, a, planar=planar).summary()
+
+        raw = scored(outputs)
+        return {"val_loss": float(torch.cat(losses).mean()), "val_rmsae_all": raw["rmsae_all"],
+                "val_rmsae_nonsilent": raw["rmsae_nonsilent"],
+                "val_rmsae_held": scored(held)["rmsae_all"] if held else raw["rmsae_all"]}
 
     # -- the loop ---------------------------------------------------------------------------------
     def run(self) -> list[dict[str, Any]]:
