@@ -20,6 +20,7 @@ import re
 from pathlib import Path
 from typing import Any, Sequence
 
+from doabench.results.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, display_path, load_references,
                                       load_runs, recording_mean)
 
@@ -126,6 +127,35 @@ def provenance_line(label: str, run: RunFile) -> str:
     return f"- **{label}**: " + "; ".join(bits) + f". Reproduce: `{reproduce_command(r)}`"
 
 
+# -- training distribution of learned trackers (doabench.results.distribution) ---------------------------
+IN_MARK, OUT_MARK = "in-distribution", "zero-shot"
+
+
+def _distribution_mark(results: dict[str, Any]) -> str:
+    verdict = training_distribution(results)
+    return "" if verdict is None else f" ({IN_MARK if verdict.status == IN else OUT_MARK})"
+
+
+def _distribution_csv(results: dict[str, Any]) -> str:
+    verdict = training_distribution(results)
+    return "" if verdict is None else f"{verdict.status} ({verdict.training})" + (
+        f": {verdict.why}" if verdict.why else "")
+
+
+def _distribution_notes(board: TaskBoard) -> list[str]:
+    """The legend of the marks: which training task each learned tracker's row is measured against."""
+    verdicts = {run.tracker_id: training_distribution(run.results) for run in board.runs}
+    verdicts = {k: v for k, v in verdicts.items() if v is not None}
+    if not verdicts:
+        return []
+    lines = ["", f"*{IN_MARK}*: a learned tracker trained on this task's simulator, array and scene family, so its "
+                 f"score measures fit to its training distribution rather than generalisation; *{OUT_MARK}*: the task "
+                 "lies outside it. Training tasks: "
+             + "; ".join(f"`{k}` {v.training}" + (f" ({v.why})" if v.why else "") for k, v in sorted(verdicts.items()))
+             + "."]
+    return lines
+
+
 # -- per-task tables ----------------------------------------------------------------------------------
 MAIN_COLUMNS = ("rank", "tracker", "causal", "params", "input", "episodes", "RMSAE all frames [95% CI]",
                 "RMSAE non-silent [95% CI]", "MAE", "median", "≤10°", "azimuth MAE", "run")
@@ -179,7 +209,8 @@ def _main_row(rank: int, run: RunFile, label: str, by_recording: bool = False) -
     pooled = s.get("pooled") or {}
     within = pooled.get("within_10")
     return [
-        str(rank), f"`{run.tracker_id}`" + (" **(untrained)**" if _untrained(r) else ""), "yes" if r.get("causal") else "no (offline)",
+        str(rank), f"`{run.tracker_id}`" + (" **(untrained)**" if _untrained(r) else "") + _distribution_mark(r),
+        "yes" if r.get("causal") else "no (offline)",
         f"{int(r['tracker'].get('parameters') or 0):,}", _input_text(r), _episodes_text(r["task"]),
         *([_num(recording_mean(r))] if by_recording else []),
         _with_ci(s.get("rmsae_all"), s.get("rmsae_all_ci95")),
@@ -288,6 +319,7 @@ def task_markdown(board: TaskBoard, command: str) -> str:
                       "MAE, median, ≤10° and azimuth MAE are over non-silent frames. Definitions: docs/concepts.md.", ""]
         rows = [_main_row(i, run, labels[run.path], by_recording) for i, run in enumerate(board.runs, start=1)]
         lines += _table(RECORDING_COLUMNS if by_recording else MAIN_COLUMNS, rows)
+        lines += _distribution_notes(board)
         if any(_untrained(r.results) for r in board.runs):
             lines += ["", "**(untrained)**: a learned tracker run with randomly initialised weights "
                           "(`--tracker-opt weights=random`); a reference point, not a trained model."]
@@ -324,7 +356,7 @@ CSV_COLUMNS = (
     "rmsae_all_ci95_high", "rmsae_nonsilent", "rmsae_nonsilent_ci95_low", "rmsae_nonsilent_ci95_high", "mae",
     "median", "p90", "within_5", "within_10", "within_20", "within_30", "azimuth_mae", "recordings",
     "results_file", "results_sha256", "git_commit", "git_dirty", "weights_hash", "base_seed", "cpu", "cpu_count",
-    "device", "torch", "doabench", "date", "command", "reference",
+    "device", "torch", "doabench", "date", "command", "reference", "training_distribution",
 )
 
 
@@ -366,6 +398,7 @@ def task_csv(board: TaskBoard) -> str:
             "cpu": env.get("cpu"), "cpu_count": env.get("cpu_count"), "device": env.get("device"),
             "torch": env.get("torch"), "doabench": env.get("doabench"), "date": env.get("date"),
             "command": reproduce_command(r), "reference": "",
+            "training_distribution": _distribution_csv(r),
         })
     methods: dict[str, list[ReferenceRow]] = {}
     for ref in board.references:
