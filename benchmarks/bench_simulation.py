@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from doabench.acoustics import rir as engine
-from doabench.acoustics import simulators
+from doabench.acoustics import convolution
 from doabench.acoustics.scenes import SceneDistribution, sample_scene
 from doabench.acoustics.simulators import get_simulator
 from doabench.results.provenance import cpu_name as _cpu_name
@@ -39,8 +39,8 @@ from doabench.results.provenance import cpu_name as _cpu_name
 STAGES = {  # stage -> (module, function name)
     "image sources": [(engine, "render_images")],
     "tail": [(engine, "tail_level"), (engine, "shared_tail")],
-    "early conv": [(simulators, "convolve_trajectory")],
-    "tail conv": [(simulators, "add_tail_convolution_")],
+    "early conv": [(convolution, "convolve_trajectory")],
+    "tail conv": [(convolution, "add_tail_convolution_")],
 }
 
 

@@ -210,7 +210,7 @@ def test_accelerator_work_sizes_give_the_same_simulation(monkeypatch):
     """Off the CPU the torch path and the FFT convolutions work in far larger pieces (fewer kernel
     launches). The pieces change only the order of float32 additions, so a simulation with the
     accelerator's sizes, run here on the CPU, must equal the CPU-sized one to rounding."""
-    from doabench.acoustics import simulators
+    from doabench.acoustics import convolution
 
     assert engine.work_elements(torch.device("cpu"), 1, 2) == 1
     assert engine.work_elements(torch.device("cuda"), 1, 2) == 2  # a device object needs no GPU
@@ -219,8 +219,8 @@ def test_accelerator_work_sizes_give_the_same_simulation(monkeypatch):
     # with the CPU's sizes the early convolution runs in several chunks of points, with the
     # accelerator's in one
     layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mics), FS)
-    row = len(mics) * simulators.trajectory_fft_size(len(x), len(src), layout.n_early)
-    assert simulators._OLA_CHUNK_ELEMENTS // row < len(src) <= simulators._OLA_CHUNK_ELEMENTS_CUDA // row
+    row = len(mics) * convolution.trajectory_fft_size(len(x), len(src), layout.n_early)
+    assert convolution._OLA_CHUNK_ELEMENTS // row < len(src) <= convolution._OLA_CHUNK_ELEMENTS_CUDA // row
     sim = get_simulator("builtin")
     saved = dict(native._state)
     try:

@@ -11,12 +11,10 @@ from scipy.signal import fftconvolve
 
 from doabench.acoustics import rir as engine
 from doabench.acoustics.room import SABINE_CONSTANT, Room, check_inside
-from doabench.acoustics.simulators import (
-    convolve_trajectory,
-    direct_path,
-    get_simulator,
-    segment_bounds,
-)
+from doabench.acoustics.backends.base import direct_path
+from doabench.acoustics.convolution import convolve_trajectory
+from doabench.acoustics.simulators import get_simulator
+from doabench.acoustics.trajectories import segment_bounds
 from doabench.errors import ConfigError, DependencyError, InputError, NotFoundError
 from doabench.geometry import SPEED_OF_SOUND
 
@@ -242,7 +240,7 @@ def test_direct_path_matches_anechoic_simulation(builtin):
 
 
 def test_unknown_simulator_lists_the_names():
-    with pytest.raises(NotFoundError, match="builtin, pyroomacoustics, gpurir"):
+    with pytest.raises(NotFoundError, match="builtin, gpurir, pyroomacoustics"):
         get_simulator("nope")
 
 
@@ -383,7 +381,7 @@ def test_pyroomacoustics_backend_uses_the_shared_tail():
 def test_tail_convolution_is_the_direct_convolution(n_samples, n_tail, start):
     """The blocked overlap-add of the shared tail equals a plain convolution (float32 rounding),
     for tails shorter and longer than a block and outputs shorter than one."""
-    from doabench.acoustics.simulators import add_tail_convolution_
+    from doabench.acoustics.convolution import add_tail_convolution_
 
     rng = np.random.default_rng(n_tail)
     x = rng.standard_normal(n_samples).astype(np.float32)
@@ -394,3 +392,28 @@ def test_tail_convolution_is_the_direct_convolution(n_samples, n_tail, start):
     for m in range(2):
         ref[m, start:] += fftconvolve(x.astype(np.float64), tail[m].astype(np.float64))[: n_samples - start]
     assert np.abs(out - ref).max() <= 1e-5 * np.abs(ref).max()
+
+
+def test_simulator_backends_are_plugins():
+    from doabench.acoustics.backends.base import Simulator
+    from doabench.acoustics.backends.builtin import BuiltinSimulator
+    from doabench.acoustics.simulators import register_simulator, simulator_names
+
+    assert {"builtin", "pyroomacoustics", "gpurir"} <= set(simulator_names())  # declared as entry points
+
+    class Quiet(BuiltinSimulator):  # a third party's backend, registered at run time
+        name = "quiet"
+
+        def simulate(self, room, sources, mics, signal, fs, *, seed=None):
+            return 0.5 * super().simulate(room, sources, mics, signal, fs, seed=seed)
+
+    register_simulator("quiet", Quiet)
+    quiet = get_simulator("quiet")
+    assert isinstance(quiet, Simulator) and "quiet" in simulator_names()
+    room = Room((5.0, 4.0, 3.0), 0.3, WEIGHTS)
+    x = np.random.default_rng(0).standard_normal(4000).astype(np.float32)
+    src, mics = np.array([[1.0, 1.0, 1.5]]), np.array([[3.0, 2.0, 1.5], [3.1, 2.0, 1.5]])
+    loud = get_simulator("builtin").simulate(room, src, mics, x, FS, seed=3)
+    assert np.allclose(quiet.simulate(room, src, mics, x, FS, seed=3), 0.5 * loud)
+    with pytest.raises(NotFoundError, match="unknown simulator 'nope'"):
+        get_simulator("nope")

@@ -14,7 +14,7 @@ Steps (the paper's Fig. 3, plus an optional directional noise):
    power per sample weighted by the segment's mean squared gain, shifted by the mean direct
    delay) instead of convolving the signal a second time (0.07 s per 20 s trajectory, a sixth of
    the simulation); it agrees with the convolved direct path
-   (:func:`~doabench.acoustics.simulators.direct_path`) within 0.1 dB (tested). Fallbacks: with
+   (:func:`~doabench.acoustics.backends.base.direct_path`) within 0.1 dB (tested). Fallbacks: with
    no non-silent frame (very short or silent chunks) the voice-active samples, and with none of
    those all samples;
 4. spatially white Gaussian noise of power ``P / 10^(SNR/10)`` is added to every microphone
@@ -160,7 +160,7 @@ def render_components(scene: Scene, speech_source, array: MicArray | str | None 
                       keep_direct: bool = False) -> RenderedScene:
     """Render ``scene`` and keep every component (see :func:`render_scene` for the arguments);
     ``keep_direct`` also convolves the direct path (for inspection and tests)."""
-    from doabench.acoustics.simulators import direct_path
+    from doabench.acoustics.backends.base import direct_path
 
     if scene.speech is None:
         raise ConfigError("this scene was drawn without a speech source and cannot be rendered")

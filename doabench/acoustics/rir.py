@@ -16,7 +16,7 @@ Model (details and rationale in docs/simulation.md, "Room impulse responses"):
   source position, and a position-independent tail lets a moving source's whole signal be
   convolved once per microphone with it while only the short early part (~Tdiff fs taps instead
   of ~Tmax fs) is convolved per trajectory segment (:class:`RirParts`,
-  ``simulators.convolve_parts``). For one point (a static source) the result is the per-point
+  ``convolution.convolve_parts``). For one point (a static source) the result is the per-point
   model's; :func:`write_diffuse_tail_` keeps that model (independent per point) for comparisons.
 
 Speed: the sinc is not evaluated per image. The compiled kernel (:mod:`doabench.acoustics.native`,

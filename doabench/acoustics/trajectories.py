@@ -36,13 +36,12 @@ from doabench.geometry import normalize
 
 def segment_bounds(n_samples: int, n_segments: int) -> np.ndarray:
     """Sample boundaries of the ``S`` segments, ``(S + 1,)`` int64: segment ``i`` is
-    ``[b[i], b[i + 1])`` with ``b[i] = floor(i * L / S)``."""
+    ``[b[i], b[i + 1])`` with ``b[i] = floor(i * L / S)`` (lengths differ by at most one sample).
+    The simulators' convolution cuts the signal by the same function, so truth and audio can never
+    disagree about segments."""
     if n_segments < 1:
         raise ConfigError(f"a trajectory needs at least one point, got {n_segments}")
-    # The simulators' own rule, so truth and audio can never disagree about segments.
-    from doabench.acoustics.simulators import segment_bounds as simulator_segments
-
-    return simulator_segments(int(n_samples), int(n_segments))
+    return (np.arange(int(n_segments) + 1, dtype=np.int64) * int(n_samples)) // int(n_segments)
 
 
 def segment_of_samples(n_samples: int, n_segments: int) -> np.ndarray:

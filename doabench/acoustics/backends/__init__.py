@@ -1,0 +1,1 @@
+"""Room simulator backends, one module each (registered in :mod:`doabench.acoustics.simulators`)."""
