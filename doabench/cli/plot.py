@@ -22,7 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     kinds = p.add_subparsers(dest="figure", metavar="FIGURE", required=True)
 
     q = kinds.add_parser("rmsae-vs-t60", help="RMSAE versus T60 per SNR from grid results (paper Figs. 6, 8)")
-    q.add_argument("results", nargs="+", help="results JSON files of a grid task (one line per file)")
+    q.add_argument("results", nargs="+",
+                   help="results JSON files of a grid task or of its cells (one line per tracker configuration: "
+                        "the per-cell files of one tracker join into one line)")
     q.add_argument("--snr", type=float, action="append",
                    help="SNR panel(s) in dB (repeatable; default: every SNR in the results)")
     q.add_argument("--metric", choices=["rmsae_all", "rmsae_nonsilent"], default="rmsae_nonsilent",
@@ -31,13 +33,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--out", default="rmsae-vs-t60", help="output path without extension (default: rmsae-vs-t60)")
     q.set_defaults(func=rmsae_vs_t60)
 
+    q = kinds.add_parser("rmsae-vs-speed",
+                         help="RMSAE of voice-active frames per angular-speed band of the truth (<5, 5-15, 15-30, "
+                              ">30 deg/s)")
+    q.add_argument("results", nargs="+",
+                   help="results JSON files with summary.speed_bands (one line per file; runs of several tasks "
+                        "are told apart by task in the legend)")
+    q.add_argument("--title", help="figure title")
+    q.add_argument("--out", default="rmsae-vs-speed", help="output path without extension (default: rmsae-vs-speed)")
+    q.set_defaults(func=rmsae_vs_speed)
+
     q = kinds.add_parser("episode", help="elevation/azimuth over time of one episode (paper Fig. 7)")
     q.add_argument("results", nargs="+",
                    help="results JSON file(s) with per-frame estimates; several files (runs of the same task) "
                         "are compared in one figure, one line per run")
     q.add_argument("--episode", type=int, required=True, help="episode index within the task")
     q.add_argument("--no-render", action="store_true",
-                   help="do not re-render the episode: no SRP maxima and no silent-frame shading")
+                   help="do not re-render the episode: no SRP maxima; silent frames are still shaded, from the "
+                        "VAD stored in the results file (files without one: no shading)")
     q.add_argument("--resolution", help="SRP resolution of the maxima (default: the run's, else 32x64)")
     q.add_argument("--out", help="output path without extension (default: <task>-episode-<i>)")
     _corpus_options(q)
@@ -60,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.set_defaults(func=conventions)
 
     q = kinds.add_parser("training", help="training curves from doabench train log.csv files")
-    q.add_argument("logs", nargs="+", help="runs/NAME/log.csv (several runs: one colour each)")
+    q.add_argument("logs", nargs="+", help="runs/NAME/log.csv (several runs: one colour and marker each)")
     q.add_argument("--out", default="training", help="output path without extension (default: training)")
     q.set_defaults(func=training)
 
@@ -76,6 +89,13 @@ def rmsae_vs_t60(args: argparse.Namespace) -> int:
 
     runs = [load_results(path) for path in args.results]
     return _done(plot_rmsae_vs_t60(runs, args.out, args.snr, args.metric, args.title))
+
+
+def rmsae_vs_speed(args: argparse.Namespace) -> int:
+    from doabench.results.plots import load_results, plot_rmsae_vs_speed
+
+    runs = [load_results(path) for path in args.results]
+    return _done(plot_rmsae_vs_speed(runs, args.out, args.title, sources=args.results))
 
 
 def episode(args: argparse.Namespace) -> int:

@@ -1,8 +1,11 @@
 """The paper's figures from doabench results: RMSAE versus T60 (Figs. 6 and 8), one episode's
-track (Fig. 7), SRP-PHAT maps at several resolutions (Figs. 1 and 2) and training curves.
+track (Fig. 7), SRP-PHAT maps at several resolutions (Figs. 1 and 2), training curves, and the
+RMSAE by angular speed of the truth.
 
-Every function builds a matplotlib figure and writes it as PNG and PDF next to each other with
-atomic writes (:func:`save_figure`). Angles are plotted in degrees with doabench's conventions:
+Every ``plot_*`` function builds a matplotlib figure (``*_figure``, which tests inspect) and
+writes it as PNG and PDF next to each other with atomic writes (:func:`save_figure`). Lines of
+several runs take :func:`line_styles` (colour, marker and dash never all alike) and
+:func:`run_labels` (tracker id with its options); legends sit outside the data. Angles are plotted in degrees with doabench's conventions:
 elevation is the inclination from +z in ``[0, 180]``, azimuth ``atan2(y, x)`` in ``[-180, 180)``.
 """
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -66,9 +70,102 @@ def load_results(path: str | Path) -> dict[str, Any]:
     return data
 
 
+def _option_text(key: str, value: Any) -> str:
+    if key == "weights" and isinstance(value, str) and value != "random":
+        value = Path(value).name  # the file, not the folder it was read from: labels stay short
+    return f"{key}={value if isinstance(value, str) else json.dumps(value, sort_keys=True)}"
+
+
 def tracker_label(results: dict[str, Any]) -> str:
+    """The tracker as a reader tells runs apart: its id and, when set, its options and delay mode
+    (``srp-kalman:32x64 (alpha=0.5)``), so two configurations of one tracker never read the same."""
     tracker = results.get("tracker") or {}
-    return str(tracker.get("id") or tracker.get("name") or "?")
+    name = str(tracker.get("id") or tracker.get("name") or "?")
+    bits = [_option_text(str(k), v) for k, v in sorted((tracker.get("options") or {}).items())]
+    delays = (results.get("features") or {}).get("delays")
+    if delays not in (None, "nearest"):
+        bits.append(f"delays={delays}")
+    return f"{name} ({', '.join(bits)})" if bits else name
+
+
+def _configuration_key(results: dict[str, Any]) -> str:
+    """What makes two runs one line: tracker, options, weights and delays (not the task, so the
+    per-cell files of one configuration join)."""
+    from doabench.results.writer import results_configuration
+
+    config = results_configuration(results)
+    return json.dumps({k: config[k] for k in ("tracker", "options", "weights", "delays")}, sort_keys=True,
+                      default=str)
+
+
+def run_labels(runs: Sequence[dict[str, Any]], with_task: bool = False) -> list[str]:
+    """One distinct legend label per run: :func:`tracker_label` (with the task when
+    ``with_task``); runs whose labels still coincide (same options, other weights) get the
+    weights' hash, then a running number."""
+    labels = [tracker_label(r) + (f" on {(r.get('task') or {}).get('id')}" if with_task else "") for r in runs]
+    for i, run in enumerate(runs):
+        if labels.count(labels[i]) > 1:
+            digest = (run.get("tracker") or {}).get("weights_hash")
+            if digest:
+                labels[i] += f" [{str(digest)[:8]}]"
+    seen: dict[str, int] = {}
+    for i, label in enumerate(list(labels)):
+        seen[label] = seen.get(label, 0) + 1
+        if seen[label] > 1:
+            labels[i] = f"{label} #{seen[label]}"
+    return labels
+
+
+# -- line styles: colour, marker and dash together tell any number of lines apart -------------------
+COLOURS = tuple(f"C{i}" for i in range(10))  # matplotlib's default cycle
+MARKERS = ("o", "s", "^", "D", "v", "<", ">", "p", "*", "h")
+DASHES: tuple[Any, ...] = ("-", "--", ":", "-.")
+
+
+@dataclass(frozen=True)
+class LineStyle:
+    """A line's colour, marker and dash pattern (a matplotlib linestyle)."""
+
+    color: str
+    marker: str
+    linestyle: Any
+
+    def kwargs(self) -> dict[str, Any]:
+        return {"color": self.color, "marker": self.marker, "linestyle": self.linestyle}
+
+
+def _dash(k: int, dashes: Sequence[Any]) -> Any:
+    if k < len(dashes):
+        return dashes[k]
+    # Past the named patterns: dash followed by one dot more for each further pattern, all distinct.
+    return (0, (6.0, 2.0) + (1.0, 2.0) * (k - len(dashes) + 2))
+
+
+def line_styles(n: int, colours: Sequence[str] = COLOURS, markers: Sequence[str] = MARKERS,
+                dashes: Sequence[Any] = DASHES) -> list[LineStyle]:
+    """``n`` styles, no two alike in (colour, marker, dash), and within the first
+    ``len(colours) * len(markers)`` no two alike in (colour, marker) either.
+
+    Line ``i`` takes colour ``i mod C``; each further round of C lines shifts the marker by one
+    against the colour and takes the next dash pattern, so the 11th line of the default palette is
+    a dashed blue square where the 1st is a solid blue circle. Past ``C * M`` lines the dash
+    patterns continue (generated ones after the named ``dashes``)."""
+    n_c, n_m = len(colours), len(markers)
+    block = n_c * n_m
+    out = []
+    for i in range(n):
+        r = i % block
+        c, q = r % n_c, r // n_c
+        # (c, q) -> (c, (c + q) mod M) is one-to-one within a block; the dash index grows by
+        # len(dashes) from block to block, so the full triple never repeats.
+        out.append(LineStyle(colours[c], markers[(c + q) % n_m],
+                             _dash((i // block) * len(dashes) + q % len(dashes), dashes)))
+    return out
+
+
+def _legend_outside(ax, **kwargs: Any):
+    """A legend to the right of ``ax``, clear of its data."""
+    return ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
 
 
 # -- Figs. 6 and 8: RMSAE versus T60 ------------------------------------------------------------------
@@ -105,16 +202,17 @@ def cells_of(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def merge_cell_runs(runs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Runs with cells, those of one tracker merged into one (per-cell results files become one line)."""
+    """Runs with cells, those of one tracker configuration merged into one (per-cell results files
+    become one line; two configurations of a tracker stay two)."""
     merged: dict[str, dict[str, Any]] = {}
     for run in runs:
         cells = cells_of(run)
         if not cells:
             continue
-        label = tracker_label(run)
-        if label not in merged:
-            merged[label] = {**run, "cells": {}}
-        merged[label]["cells"].update(cells)
+        key = _configuration_key(run)
+        if key not in merged:
+            merged[key] = {**run, "cells": {}}
+        merged[key]["cells"].update(cells)
     return list(merged.values())
 
 
@@ -122,9 +220,9 @@ def available_snrs(runs: Sequence[dict[str, Any]]) -> list[float]:
     return sorted({float(c["snr"]) for r in runs for c in (r.get("cells") or {}).values()})
 
 
-def plot_rmsae_vs_t60(runs: Sequence[dict[str, Any]], out: str | Path, snrs: Sequence[float] | None = None,
-                      metric: str = "rmsae_nonsilent", title: str | None = None) -> list[Path]:
-    """One panel per SNR, one line per run (tracker) with its 95% bootstrap band."""
+def rmsae_vs_t60_figure(runs: Sequence[dict[str, Any]], snrs: Sequence[float] | None = None,
+                        metric: str = "rmsae_nonsilent", title: str | None = None):
+    """The figure of :func:`plot_rmsae_vs_t60`, not yet written."""
     if metric not in METRICS:
         raise InputError(f"--metric must be one of {', '.join(METRICS)}, not {metric!r}")
     grid_runs = merge_cell_runs(runs)
@@ -140,25 +238,95 @@ def plot_rmsae_vs_t60(runs: Sequence[dict[str, Any]], out: str | Path, snrs: Seq
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(snrs), figsize=(4.6 * len(snrs), 3.8), sharey=True, squeeze=False)
     ordered = sorted(grid_runs, key=tracker_label)
+    labels = run_labels(ordered)
+    styles = line_styles(len(ordered))
     for ax, snr in zip(axes[0], snrs):
-        for i, run in enumerate(ordered):
+        for run, label, style in zip(ordered, labels, styles):
             t60, values, ci = grid_curves(run, snr, metric)
-            # Colours and markers repeat after 10 trackers (matplotlib's cycle): the line style
-            # tells the 11th from the 1st.
-            line, = ax.plot(t60, values, marker="os^Dv<>p*h"[i % 10], linestyle=("-", "--", ":")[i // 10 % 3],
-                            color=f"C{i % 10}", label=tracker_label(run))
+            ax.plot(t60, values, label=label, **style.kwargs())
             if np.all(np.isfinite(ci)):
-                ax.fill_between(t60, ci[:, 0], ci[:, 1], color=line.get_color(), alpha=0.15, linewidth=0)
+                ax.fill_between(t60, ci[:, 0], ci[:, 1], color=style.color, alpha=0.15, linewidth=0)
         ax.set_title(f"SNR = {snr:g} dB")
         ax.set_xlabel("T60 [s]")
         ax.grid(True, alpha=0.3)
     axes[0][0].set_ylabel(METRIC_LABELS[metric])
     axes[0][0].set_ylim(bottom=0)
-    axes[0][-1].legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0))  # outside: many lines
+    _legend_outside(axes[0][-1], ncol=1 if len(ordered) <= 16 else 2)
     task = grid_runs[0]["task"]["id"]
     fig.suptitle(title or f"{task}: {METRIC_LABELS[metric].split(' [')[0]} versus T60 (bands: 95% bootstrap CI)")
     fig.tight_layout()
-    return save_figure(fig, out)
+    return fig
+
+
+def plot_rmsae_vs_t60(runs: Sequence[dict[str, Any]], out: str | Path, snrs: Sequence[float] | None = None,
+                      metric: str = "rmsae_nonsilent", title: str | None = None) -> list[Path]:
+    """One panel per SNR, one line per tracker configuration with its 95% bootstrap band, each
+    line its own colour, marker and dash (:func:`line_styles`); the legend is right of the panels."""
+    return save_figure(rmsae_vs_t60_figure(runs, snrs, metric, title), out)
+
+
+# -- RMSAE by angular speed of the truth --------------------------------------------------------------
+SPEED_LABEL = "RMSAE, voice-active frames [deg]"
+
+
+def speed_bands_of(results: dict[str, Any], source: str = "a results file") -> dict[str, dict[str, Any]]:
+    """``summary.speed_bands`` of a results file; InputError naming ``source`` when it has none."""
+    bands = (results.get("summary") or {}).get("speed_bands")
+    if not isinstance(bands, dict) or not bands:
+        raise InputError(f"{source} has no summary.speed_bands (RMSAE by angular speed): it was written "
+                         "before doabench recorded them; run the task again")
+    return bands
+
+
+def rmsae_vs_speed_figure(runs: Sequence[dict[str, Any]], title: str | None = None,
+                          sources: Sequence[str] | None = None):
+    """The figure of :func:`plot_rmsae_vs_speed`, not yet written."""
+    if not runs:
+        raise InputError("no results files to plot")
+    sources = list(sources) if sources is not None else [f"results file {i + 1}" for i in range(len(runs))]
+    bands = [speed_bands_of(run, source) for run, source in zip(runs, sources)]
+    # The bands as the files name them, slowest first (the runner writes doabench.metrics.SPEED_BANDS
+    # in that order); read from the files so a file keeps plotting if the bands ever change.
+    names = list(dict.fromkeys(name for b in bands for name in b))
+    tasks = [str((r.get("task") or {}).get("id")) for r in runs]
+    labels = run_labels(runs, with_task=len(set(tasks)) > 1)
+    order = sorted(range(len(runs)), key=lambda i: labels[i])
+    styles = line_styles(len(runs))
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.4, 3.8))
+    x = np.arange(len(names))
+
+    def value(band: dict[str, Any] | None) -> float:
+        v = (band or {}).get("rmsae")
+        return math.nan if v is None or not (band or {}).get("n_frames") else float(v)
+
+    for style, i in zip(styles, order):
+        ax.plot(x, [value(bands[i].get(name)) for name in names], label=labels[i], **style.kwargs())
+    counts = [{int((b.get(name) or {}).get("n_frames") or 0) for b in bands} for name in names]
+    ticks = names
+    if all(len(c) == 1 for c in counts):  # one task: every line has the same frames per band
+        ticks = [f"{name}\n{next(iter(c))} frames" for name, c in zip(names, counts)]
+    ax.set_xticks(x)
+    ax.set_xticklabels(ticks)
+    ax.set_xlim(-0.4, len(names) - 0.6)
+    ax.set_xlabel("angular speed of the truth, seen from the array [deg/s]")
+    ax.set_ylabel(SPEED_LABEL)
+    ax.set_ylim(bottom=0)
+    ax.grid(True, alpha=0.3)
+    _legend_outside(ax, ncol=1 if len(runs) <= 16 else 2)
+    task_text = ", ".join(dict.fromkeys(tasks))
+    fig.suptitle(title or f"{task_text}: RMSAE of voice-active frames by angular speed of the truth",
+                 fontsize="medium")
+    fig.tight_layout()
+    return fig
+
+
+def plot_rmsae_vs_speed(runs: Sequence[dict[str, Any]], out: str | Path, title: str | None = None,
+                        sources: Sequence[str] | None = None) -> list[Path]:
+    """RMSAE of the voice-active frames per angular-speed band of the truth (``<5``, ``5-15``,
+    ``15-30``, ``>30`` deg/s; ``summary.speed_bands``), one line per run in the distinct styles of
+    :func:`line_styles`. ``sources`` name the runs in errors (the files they came from)."""
+    return save_figure(rmsae_vs_speed_figure(runs, title, sources), out)
 
 
 # -- Fig. 7: one episode ------------------------------------------------------------------------------
@@ -219,35 +387,41 @@ def _shade_silence(ax, times: np.ndarray, vad: np.ndarray) -> None:
             start = None
 
 
-def plot_episode(results: dict[str, Any], episode: int, out: str | Path, maxima: np.ndarray | None = None,
-                 vad: np.ndarray | None = None, maxima_label: str = "SRP-PHAT maximum",
-                 title: str | None = None, others: Sequence[dict[str, Any]] = ()) -> list[Path]:
-    """Elevation and azimuth over time: truth (solid), estimate (dashed), map maxima (crosses),
-    grey silent frames. ``maxima (T, 3)`` and ``vad (T,)`` come from re-rendering the episode.
-    ``others``: more runs of the same task, drawn as further estimates (one colour each)."""
+#: the truth's colour in the episode plot; estimates take the other colours
+TRUTH_COLOUR = "C3"
+
+
+def episode_figure(results: dict[str, Any], episode: int, maxima: np.ndarray | None = None,
+                   vad: np.ndarray | None = None, maxima_label: str = "SRP-PHAT maximum",
+                   title: str | None = None, others: Sequence[dict[str, Any]] = ()):
+    """The figure of :func:`plot_episode`, not yet written."""
     from matplotlib.patches import Patch
 
-    f = episode_frames(results, episode)
-    extra = [(tracker_label(r), _degrees(episode_frames(r, episode)["estimates"])) for r in others]
+    runs = [results, *others]
+    frames = [episode_frames(r, episode) for r in runs]
+    f = frames[0]
     t = f["times"]
     el_t, az_t = _degrees(f["truth"])
-    el_e, az_e = _degrees(f["estimates"])
+    labels = run_labels(runs)
+    # Estimates: every colour but the truth's, dashed first (the truth is the one solid red line);
+    # markers every few frames so lines of the same colour family still read apart.
+    styles = line_styles(len(runs), colours=[c for c in COLOURS if c != TRUTH_COLOUR], dashes=("--", "-.", ":", "-"))
+    every = max(1, len(t) // 12)
     plt = _pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(7.5, 5.0), sharex=True)
-    for ax, truth, est, index, name, lim in ((axes[0], el_t, el_e, 0, "elevation [deg]", (0, 180)),
-                                             (axes[1], az_t, az_e, 1, "azimuth [deg]", (-180, 180))):
+    for ax, truth, index, name, lim in ((axes[0], el_t, 0, "elevation [deg]", (0, 180)),
+                                        (axes[1], az_t, 1, "azimuth [deg]", (-180, 180))):
         if vad is not None:
             _shade_silence(ax, t, vad)
         if maxima is not None:
             m = _degrees(maxima)[index]
             ax.plot(t, m, "x", color="0.35", markersize=4, label=maxima_label)
-        ax.plot(*(_break_wraps(t, truth) if index else (t, truth)), "-", color="C3", linewidth=1.8, label="truth")
-        ax.plot(*(_break_wraps(t, est) if index else (t, est)), "--", color="C0", linewidth=1.5,
-                label=f"estimate ({tracker_label(results)})")
-        for k, (name_k, angles) in enumerate(extra):
-            e = angles[index]
-            ax.plot(*(_break_wraps(t, e) if index else (t, e)), ["-.", ":", "--"][k % 3], color=("C2", "C4", "C5", "C6", "C7", "C8", "C9")[k % 7],
-                    linewidth=1.3, label=f"estimate ({name_k})")
+        ax.plot(*(_break_wraps(t, truth) if index else (t, truth)), "-", color=TRUTH_COLOUR, linewidth=1.8,
+                label="truth")
+        for fr, label, style in zip(frames, labels, styles):
+            e = _degrees(fr["estimates"])[index]
+            ax.plot(*(_break_wraps(t, e) if index else (t, e)), linewidth=1.4, markersize=4, markevery=every,
+                    label=f"{label}: RMSAE {fr['row']['rmsae_all']:.1f}° all frames", **style.kwargs())
         ax.set_ylabel(name)
         ax.set_ylim(*lim)
         ax.set_yticks(np.arange(lim[0], lim[1] + 1, 45))
@@ -256,20 +430,28 @@ def plot_episode(results: dict[str, Any], episode: int, out: str | Path, maxima:
     handles, _ = axes[0].get_legend_handles_labels()
     if vad is not None and not np.all(vad):
         handles.append(Patch(color="0.85", label="silent frames"))
-    axes[0].legend(handles=handles, fontsize="small", loc="upper right", ncol=3)
+    # Right of the elevation panel, never over either panel's lines.
+    axes[0].legend(handles=handles, fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0),
+                   borderaxespad=0.0)
     row = f["row"]
     scene = ", ".join(x for x in (
         f"T60 {row['t60']:.2g} s" if row.get("t60") is not None else "",
         f"SNR {row['snr']:.3g} dB" if row.get("snr") is not None else "") if x)
-    scores = f": RMSAE {row['rmsae_all']:.1f}° all, {row['rmsae_nonsilent']:.1f}° non-silent"
-    if others:
-        scores = ": RMSAE all " + ", ".join(
-            f"{tracker_label(r)} {episode_frames(r, episode)['row']['rmsae_all']:.1f}°" for r in (results, *others))
     fig.suptitle(title or f"{row.get('task') or results['task']['id']} episode {episode}"
-                 + (f" ({scene})" if scene else "") + scores + ("; grey = silent" if vad is not None else ""),
+                 + (f" ({scene})" if scene else "") + ("; grey = silent" if vad is not None else ""),
                  fontsize="medium")
     fig.tight_layout()
-    return save_figure(fig, out)
+    return fig
+
+
+def plot_episode(results: dict[str, Any], episode: int, out: str | Path, maxima: np.ndarray | None = None,
+                 vad: np.ndarray | None = None, maxima_label: str = "SRP-PHAT maximum",
+                 title: str | None = None, others: Sequence[dict[str, Any]] = ()) -> list[Path]:
+    """Elevation and azimuth over time: truth (solid red), each run's estimate (its own colour,
+    dash and marker, labelled with its options and RMSAE), map maxima (crosses), grey silent
+    frames; the legend right of the panels. ``maxima (T, 3)`` come from re-rendering the episode,
+    ``vad (T,)`` from re-rendering or the results file. ``others``: more runs of the same task."""
+    return save_figure(episode_figure(results, episode, maxima, vad, maxima_label, title, others), out)
 
 
 # -- Figs. 1 and 2: SRP-PHAT maps -------------------------------------------------------------------
@@ -301,7 +483,14 @@ def srp_maps(task: str, episode: int, frame: int, resolutions: Sequence[tuple[in
 
 def plot_maps(maps: dict[tuple[int, int], np.ndarray], true_direction: np.ndarray, out: str | Path,
               planar: bool = False, title: str = "") -> list[Path]:
-    """SRP-PHAT maps side by side; red dot: true DOA, black dot: the map's maximum (as in the paper)."""
+    """SRP-PHAT maps side by side; red dot: true DOA, black dot: the map's maximum (as in the
+    paper); the legend below the maps."""
+    return save_figure(maps_figure(maps, true_direction, planar, title), out)
+
+
+def maps_figure(maps: dict[tuple[int, int], np.ndarray], true_direction: np.ndarray, planar: bool = False,
+                title: str = ""):
+    """The figure of :func:`plot_maps`, not yet written."""
     from doabench.geometry import grid_angles
 
     plt = _pyplot()
@@ -329,11 +518,13 @@ def plot_maps(maps: dict[tuple[int, int], np.ndarray], true_direction: np.ndarra
         ax.set_xlim(az[0] - d_az / 2, az[-1] + d_az / 2)
     for ax in list(axes.flat)[n:]:
         ax.set_visible(False)
-    axes.flat[0].legend(fontsize="x-small", loc="lower left")
     if title:
         fig.suptitle(title, fontsize="medium")
-    fig.tight_layout()
-    return save_figure(fig, out)
+    # Below the maps (a legend inside would hide map cells): room for one row at the bottom.
+    fig.tight_layout(rect=(0.0, 0.35 / fig.get_figheight(), 1.0, 1.0))
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize="x-small", loc="lower center", ncol=len(handles), bbox_to_anchor=(0.5, 0.0))
+    return fig
 
 
 # -- training curves -----------------------------------------------------------------------------
@@ -358,19 +549,28 @@ def read_training_log(path: str | Path) -> dict[str, np.ndarray]:
 
 
 def plot_training(logs: dict[str, dict[str, np.ndarray]], out: str | Path) -> list[Path]:
-    """Loss (log scale) and validation RMSAE per epoch, one colour per run."""
+    """Loss (log scale) and validation RMSAE per epoch, one colour and marker per run (solid:
+    train / all frames, dashed: validation / non-silent); legends below the panels."""
+    return save_figure(training_figure(logs), out)
+
+
+def training_figure(logs: dict[str, dict[str, np.ndarray]]):
+    """The figure of :func:`plot_training`, not yet written."""
     plt = _pyplot()
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.8))
-    for i, (name, log) in enumerate(sorted(logs.items())):
+    # The dash says which curve of a run it is, so runs differ by colour and marker only:
+    # line_styles' (colour, marker) pairs are distinct for the first 100 runs.
+    runs = sorted(logs.items())
+    for (name, log), run_style in zip(runs, line_styles(len(runs))):
         epochs = log["epoch"]
-        color = f"C{i % 10}"
+        look = {"color": run_style.color, "marker": run_style.marker, "markersize": 4}
         prefix = f"{name}: " if len(logs) > 1 else ""
         for key, style, label in (("train_loss", "-", "train"), ("val_loss", "--", "validation")):
             if key in log and np.any(np.isfinite(log[key])):
-                ax1.plot(epochs, log[key], style, color=color, marker=".", label=prefix + label)
+                ax1.plot(epochs, log[key], linestyle=style, label=prefix + label, **look)
         for key, style, label in (("val_rmsae_all", "-", "all frames"), ("val_rmsae_nonsilent", "--", "non-silent")):
             if key in log and np.any(np.isfinite(log[key])):
-                ax2.plot(epochs, log[key], style, color=color, marker=".", label=prefix + label)
+                ax2.plot(epochs, log[key], linestyle=style, label=prefix + label, **look)
     ax1.set_xlabel("epoch")
     ax1.set_ylabel("loss")
     if any(np.nanmin(log.get(k, [np.nan])) > 0 for log in logs.values() for k in ("train_loss",)
@@ -380,11 +580,11 @@ def plot_training(logs: dict[str, dict[str, np.ndarray]], out: str | Path) -> li
     ax2.set_ylabel("validation RMSAE [deg]")
     for ax in (ax1, ax2):
         ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize="small")
+        if ax.get_legend_handles_labels()[0]:  # below the panel, clear of the curves
+            ax.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2)
     fig.suptitle("training: " + ", ".join(sorted(logs)), fontsize="medium")
     fig.tight_layout()
-    return save_figure(fig, out)
+    return fig
 
 
 # -- conventions figure (docs/concepts.md) ----------------------------------------------------------
@@ -392,6 +592,11 @@ def plot_conventions(array, resolution: tuple[int, int], out: str | Path) -> lis
     """The array frame and the SRP grid: microphones seen from above and from the side (axes of
     the array frame), and the grid's points on the (azimuth, elevation) plane with the named
     directions (+x, +y, up, down) marked."""
+    return save_figure(conventions_figure(array, resolution), out)
+
+
+def conventions_figure(array, resolution: tuple[int, int]):
+    """The figure of :func:`plot_conventions`, not yet written."""
     from doabench.geometry import grid_angles
 
     plt = _pyplot()
@@ -432,6 +637,6 @@ def plot_conventions(array, resolution: tuple[int, int], out: str | Path) -> lis
     ax.set_ylabel("elevation θ from +z [deg]")
     ax.set_title(f"SRP grid: θ_i = 180°·i/{n_theta - 1}, φ_j = −180° + 360°·j/{n_phi}", fontsize="medium")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="x-small", loc="lower right")
+    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.16))  # below: clear of the grid
     fig.tight_layout()
-    return save_figure(fig, out)
+    return fig
