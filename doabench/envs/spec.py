@@ -6,7 +6,7 @@ A spec file (``tasks/<id>.toml``)::
     version = 0            # bump whenever a change can move a score
     kind = "simulated"     # which episode source builds the episodes (see doabench.envs.sources)
     description = "..."
-    array = "nao"          # built-in array name or a JSON/YAML array file
+    array = "nao"          # built-in array name or a JSON/YAML array file (relative: to this file's folder)
     episodes = 3
     base_seed = 1000
     [frames]               # optional, defaults: window 4096, hop 3/4 window, fs 16000
@@ -146,8 +146,27 @@ def _expand_grid(base: TaskSpec, source: str) -> list[TaskSpec]:
     return cells + [grid_task]
 
 
+ARRAY_FILE_SUFFIXES = (".json", ".yaml", ".yml")
+
+
+def is_array_path(value: str) -> bool:
+    """Whether a spec's ``array`` names a file rather than a built-in array: it has a JSON/YAML
+    suffix or a folder in it (a bare name such as ``nao`` is always the built-in one)."""
+    return Path(value).suffix.lower() in ARRAY_FILE_SUFFIXES or "/" in value or "\\" in value
+
+
+def resolve_array_path(value: Any, folder: str | Path) -> Any:
+    """A relative array file of a spec file, made absolute against the spec file's ``folder``,
+    so a task loads the same array from any working directory; names and absolute paths as given."""
+    if not isinstance(value, str) or not is_array_path(value):
+        return value
+    path = Path(value).expanduser()
+    return value if path.is_absolute() else str((Path(folder) / path).resolve())
+
+
 def load_spec_file(path: str | Path) -> list[TaskSpec]:
-    """Parse one TOML spec file into its task(s)."""
+    """Parse one TOML spec file into its task(s). A relative ``array`` file is read from the spec
+    file's folder, not from the working directory."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text())
@@ -155,4 +174,6 @@ def load_spec_file(path: str | Path) -> list[TaskSpec]:
         raise ConfigError(f"task spec {path} does not exist") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"task spec {path}: invalid TOML ({exc})") from None
+    if "array" in data:
+        data["array"] = resolve_array_path(data["array"], path.resolve().parent)
     return spec_from_dict(data, str(path))
