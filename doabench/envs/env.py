@@ -47,8 +47,12 @@ class DoaEnv(gymnasium.Env):
 
     Parameters: ``task`` (id or TaskSpec); ``features`` (subset of srp, srp_max, gcc, spectrogram);
     ``resolution`` ((n_theta, n_phi) or "16x32"); ``delays`` ("nearest" or "exact");
-    ``frame_spec`` (default: the task's); ``device`` for simulation and features; ``librispeech``,
-    ``locata_root``, ``split``, ``backend`` and other options go to the task's episode source.
+    ``frame_spec`` (default: the task's); ``device`` for simulation and features; ``episodes``:
+    this environment's share of the task's episodes (indices), served in order by ``reset()``
+    without an ``episode`` option, each once per pass (``info["repeat"]`` counts the passes; see
+    :func:`doabench.envs.vector.make_vec`, which splits a task across sub-environments);
+    ``librispeech``, ``locata_root``, ``split``, ``backend`` and other options go to the task's
+    episode source.
     """
 
     metadata = {"render_modes": []}
@@ -56,7 +60,7 @@ class DoaEnv(gymnasium.Env):
     def __init__(self, task: str | TaskSpec, features: Sequence[str] = ("srp", "srp_max"),
                  resolution: tuple[int, int] | str = (16, 32), delays: str = "nearest",
                  frame_spec: FrameSpec | None = None, device: str | None = None, cache_size: int = 2,
-                 **source_options: Any) -> None:
+                 episodes: Sequence[int] | None = None, **source_options: Any) -> None:
         super().__init__()
         self.spec_task = get_task_spec(task)
         self.features = check_kinds(features)
@@ -77,6 +81,24 @@ class DoaEnv(gymnasium.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self._t = 0
         self._episode_index: int | None = None
+        self.episode_share: list[int] | None = None if episodes is None else self._check_share(episodes)
+        self._share_next = 0  # position in the share of the next reset() without an episode option
+        self._share_pass = 0  # completed passes through the share
+
+    def _check_share(self, episodes: Sequence[int]) -> list[int]:
+        try:
+            share = [int(i) for i in episodes]
+        except (TypeError, ValueError):
+            raise InputError(f"episodes must be a list of episode indices, got {episodes!r}") from None
+        if not share:
+            raise InputError("episodes is empty: give this environment at least one episode")
+        bad = [i for i in share if not 0 <= i < self.n_episodes]
+        if bad:
+            raise InputError(f"task {self.spec_task.id!r} has episodes 0-{self.n_episodes - 1}; "
+                             f"episodes {bad[:5]} do not exist")
+        if len(set(share)) != len(share):
+            raise InputError(f"episodes lists an episode twice: {share}")
+        return share
 
     # -- episodes ---------------------------------------------------------------------------------
     @property
@@ -125,8 +147,18 @@ class DoaEnv(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         options = options or {}
+        repeat = None
         if "episode" in options:
             index = int(options["episode"])
+        elif self.episode_share is not None:
+            if seed is not None:  # a seeded reset starts the share afresh, as it restarts the RNG
+                self._share_next, self._share_pass = 0, 0
+            index, repeat = self.episode_share[self._share_next], self._share_pass
+            self._share_next += 1
+            if self._share_next == len(self.episode_share):
+                # Vector envs auto-reset a finished sub-environment while the others still run:
+                # it starts its share again, and info["repeat"] says these episodes came before.
+                self._share_next, self._share_pass = 0, self._share_pass + 1
         else:
             index = int(self.np_random.integers(self.n_episodes))
         self._episode, self._feats, self._truth = self.load_episode(index)
@@ -135,6 +167,8 @@ class DoaEnv(gymnasium.Env):
         self._t = 0
         # What a deployed tracker could know too: no scene, truth or seed (episode_metadata() has them)
         info = {"episode": index, "n_frames": self._n_frames, "frame_times": self._truth["times"].copy()}
+        if repeat is not None:
+            info["repeat"] = repeat
         return self._observation(0), info
 
     def step(self, action):
