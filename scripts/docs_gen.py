@@ -3,7 +3,9 @@
 ``python scripts/docs_gen.py`` writes ``docs/tasks.md`` (every built-in task spec) and
 ``docs/trackers.md`` (every registered tracker, with parameter counts from ``describe()``, which
 works without weights), plus ``docs/adding-a-tracker.md``'s code block from
-``docs/examples/centroid_tracker.py``. ``--check`` writes nothing and exits 1 when a committed page
+``docs/examples/centroid_tracker.py``, and the site's generated parts (``scripts/docs_site.py``:
+the leaderboard pages copied from ``leaderboards/``, the home page's headline tables, the tables
+and comparisons in ``docs/results.md``, the model cards). ``--check`` writes nothing and exits 1 when a committed page
 differs from what the registries give now (the docs test runs it), so the pages cannot go stale.
 
 Only built-in tasks (the ``tasks/`` TOML files shipped with doabench) are listed, so the pages do
@@ -229,7 +231,17 @@ def generated_pages(docs: Path) -> dict[Path, str]:
     page = docs / "adding-a-tracker.md"
     if page.is_file():
         pages[page] = with_example(page.read_text(), docs / "examples" / "centroid_tracker.py")
-    return pages
+    return {**pages, **_site().site_pages(docs)}
+
+
+def _site():
+    """scripts/docs_site.py: the site's leaderboard pages, home headline, result blocks and model cards."""
+    import importlib
+
+    folder = str(Path(__file__).resolve().parent)
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    return importlib.import_module("docs_site")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -79,3 +79,31 @@ def test_adding_a_task_example_is_shown_registered_and_runs(tmp_path: Path) -> N
     results = doabench.run(tracker="srp-max:8x16", task="quiet-office", episodes=1, progress=False)
     assert results["task"]["id"] == "quiet-office" and results["task"]["episodes_run"] == 1
     assert 0 <= results["summary"]["rmsae_all"] < 180
+
+
+def test_site_leaderboards_are_the_files_doabench_leaderboard_writes() -> None:
+    """One source: every page of the site's Leaderboards section is leaderboards/<name>.md (only the
+    generated-by note and the Concepts link differ), every leaderboards/*.md has a page and a nav
+    entry, and the home page's headline numbers are the leaderboards' (docs_gen --check covers the
+    page texts; this names the drift)."""
+    site = _docs_gen()._site()
+    stale = site.stale_leaderboard_copies(DOCS)
+    assert not stale, f"docs/leaderboards differs from leaderboards/ for {stale}: run `python scripts/docs_gen.py`"
+    nav = (ROOT / "mkdocs.yml").read_text()
+    for path in (ROOT / "leaderboards").glob("*.md"):
+        page = "index.md" if path.name == "summary.md" else path.name
+        assert f"leaderboards/{page}" in nav, f"{page} is not in mkdocs.yml's nav"
+        copy = (DOCS / "leaderboards" / page).read_text()
+        assert copy == site.leaderboard_page(path.read_text(), f"leaderboards/{path.name}")
+    home = (DOCS / "index.md").read_text()
+    for row in site.task_rows("sim-grid")[:3]:
+        assert f"`{row['tracker']}`" in home and site._with_ci(row, "rmsae_all") in home
+
+
+def test_model_cards_cover_every_shipped_weights_file() -> None:
+    cards = (DOCS / "model-cards.md").read_text()
+    for name, sha in _docs_gen()._site().shipped_weights():
+        assert sha[:16] in cards, f"no model card for baselines/weights/{name}"
+    for heading in ("**Benchmark scores**", "**Reproduce**", "| training distribution |", "| validation |",
+                    "**Known limits.**"):
+        assert heading in cards
