@@ -33,6 +33,7 @@ from doabench.training.data import (CachedItems, DatasetItems, NetworkInputs, Si
                                     collate)
 from doabench.training.pipeline import (DEFAULT_CACHE_ROOT, cache_folder, ensure_cache, scene_distribution,
                                         speech_for_split)
+from doabench.training.progress import EpochProgress, loader_length
 from doabench.training.protocol import check_trainable, feature_options, training_defaults
 from doabench.training.recipes import Recipe, resume_conflicts
 
@@ -467,11 +468,11 @@ class Trainer:
             if self.dist is not None:  # data-parallel hook: this rank's share of each global batch
                 loader = self.dist.loader(self, items, phase.batch_size)
             losses = []
-            bar = _progress(loader, f"epoch {epoch + 1}/{self.recipe.epochs}", self.options.progress)
-            for batch in bar:
-                losses.append(self.train_step(batch))
-                if hasattr(bar, "set_postfix"):
-                    bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
+            with EpochProgress(loader_length(loader), f"epoch {epoch + 1}/{self.recipe.epochs}",
+                               self.options.progress) as bar:
+                for batch in loader:
+                    losses.append(self.train_step(batch))
+                    bar.step(float(np.mean(losses[-20:])))
             metrics = self.validate(val)
             epoch_s = time.perf_counter() - t0
             compute_s += epoch_s
@@ -530,17 +531,6 @@ def _contiguous(indices: list[int]) -> list[int]:
             break
         n += 1
     return list(range(n))
-
-
-def _progress(loader, desc: str, enabled: bool):
-    if not enabled:
-        return loader
-    import sys
-
-    from tqdm import tqdm
-
-    tty = sys.stderr.isatty()
-    return tqdm(loader, desc=desc, leave=tty, mininterval=0.5 if tty else 60.0, dynamic_ncols=True)
 
 
 def write_log(path: Path, history: list[dict[str, Any]]) -> None:
