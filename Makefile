@@ -31,7 +31,9 @@ test: setup
 	$(BIN)/python -m pytest
 
 # The explicit command that changes the committed demo results (and the leaderboards built from them).
+# Only from a clean tree: the results record the commit they were made with, which must be the code.
 update-demo-results: setup
+	@test -z "$$(git status --porcelain --untracked-files=no)" || { echo "update-demo-results: the working tree has uncommitted changes (git status); commit them first, so the results record a clean tree" >&2; exit 2; }
 	$(BIN)/doabench run --tracker srp-max --task sim-demo --out results --overwrite
 	$(BIN)/doabench leaderboard --results results --out leaderboards
 
