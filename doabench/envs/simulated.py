@@ -61,6 +61,11 @@ class SimulatedEpisodes:
         keys = (j,) if cell_index is None else (cell_index, j)
         return dist, cell_spec, episode_seed(self.spec.base_seed, *keys)
 
+    def episode_seed(self, index: int) -> int:
+        """The scene seed of episode ``index`` (a pure function of the spec and the cell, not of
+        how many episodes a cell has)."""
+        return self._locate(index)[2]
+
     def scene(self, index: int):
         from doabench.acoustics.scenes import sample_scene
 

@@ -2,10 +2,11 @@
 episode once (a sweep of four trackers over a pyroomacoustics task spends most of its time in the
 simulator otherwise: about 20 s per 20 s episode at T60 0.9 s).
 
-Opt-in: set ``DOABENCH_EPISODE_CACHE=DIR``. An episode is stored as ``DIR/<task>-<key>-<index>.npz``
-(float32 audio, about 15 MB for 20 s of 12 channels) where ``key`` hashes the task's spec, its
-episode source's description (simulator backend and versions, speech corpus, scene overrides) and
-doabench's version, so a changed simulator or task never reuses a stale file. Files are written
+Opt-in: set ``DOABENCH_EPISODE_CACHE=DIR``. An episode is stored as ``DIR/<task>-<key>-<seed>.npz``
+(float32 audio and float64 truth, about 23 MB for 20 s of 12 channels) where ``key`` hashes the
+task's spec (without its episode counts: a cell's episode ``j`` has the same seed however many the
+cell has), its episode source's description (simulator backend and versions, speech corpus, scene
+overrides) and doabench's version, so a changed simulator or task never reuses a stale file. Files are written
 atomically; a damaged one is rendered again. Only simulated tasks are cached (recordings are read
 from disk anyway). The cached episode equals the rendered one bit for bit.
 """
@@ -34,7 +35,14 @@ class CachedEpisodes:
         from doabench._version import __version__
 
         self.source, self.folder = source, Path(folder)
-        text = json.dumps({"spec": spec.to_dict(), "source": source.describe(), "doabench": __version__},
+        described = spec.to_dict()
+        described.pop("episodes", None)
+        params = dict(described.get("params", {}))
+        params.pop("cells", None)  # the cells' ids follow from the grid
+        if "grid" in params:
+            params["grid"] = {k: v for k, v in dict(params["grid"]).items() if k != "episodes_per_cell"}
+        described["params"] = params
+        text = json.dumps({"spec": described, "source": source.describe(), "doabench": __version__},
                           sort_keys=True, default=str)
         self.prefix = f"{spec.id}-{hashlib.sha256(text.encode()).hexdigest()[:16]}"
 
@@ -45,7 +53,7 @@ class CachedEpisodes:
         return getattr(self.source, name)
 
     def path(self, index: int) -> Path:
-        return self.folder / f"{self.prefix}-{int(index):05d}.npz"
+        return self.folder / f"{self.prefix}-{int(self.source.episode_seed(index))}.npz"
 
     def episode(self, index: int) -> Episode:
         path = self.path(index)
@@ -88,6 +96,6 @@ def cache_episodes(env: Any) -> None:
     folder = os.environ.get(ENV_VAR)
     if not folder or isinstance(env.source, CachedEpisodes):
         return
-    if "simulator" not in env.source.describe():
+    if "simulator" not in env.source.describe() or not hasattr(env.source, "episode_seed"):
         return
     env.source = CachedEpisodes(env.source, folder, env.spec_task)
