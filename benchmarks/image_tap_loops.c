@@ -1,4 +1,4 @@
-/* The per-image tap loops of doabench/acoustics/image_sources.c in isolation (issue 13): ns per
+/* The per-image tap loops of doabench/acoustics/image_sources.c in isolation: ns per
  * (image, microphone) for 3,000 images x 12 microphones into one 4,000-sample row.
  *   kernel 3: 34 taps interpolated between two of 8 phases (three 16-float vectors, 48-lane rows)
  *   nearest over 48 lanes: one phase of 128, three vectors

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Where the compiled image-source kernel spends its time on one slow scene (issue 13).
+"""Where the compiled image-source kernel spends its time on one slow scene.
 
 Scene 1001 of the benchmark's distribution (moving source; 5.8 x 6.8 x 2.8 m, T60 1.21 s): the
 kernel's CPU time with one microphone and with all twelve, so the per-point gathering of the

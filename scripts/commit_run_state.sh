@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# End of a working session: commit the state of every unfinished training run (issue 12, "runs
-# that outlast a working day"). Waits for the running `doabench train` to finish its current
+# Maintainers: at the end of a working session, commit the state of every unfinished training run.
+# Long runs outlast a working day, so their state is committed and resumed later. Waits for the running `doabench train` to finish its current
 # epoch (--now: do not wait; the epoch in progress is then redone on resume), stops it, compacts
 # each unfinished run's checkpoint (Adam moments and best weights in bfloat16, about 40 % smaller:
 # `doabench train --compact`) and commits training-runs/ (and baselines/weights/ when the queue
@@ -9,7 +9,7 @@
 #   scripts/commit_run_state.sh          # wait for the epoch boundary (at most --max-wait seconds, default 900)
 #   scripts/commit_run_state.sh --now
 #
-# Budget: run states may add at most RUN_STATE_BUDGET_MB (default 150, issue 12) to the
+# Budget: run states may add at most RUN_STATE_BUDGET_MB (default 150) to the
 # repository in all (every committed checkpoint stays in the history). A run whose compacted
 # checkpoint would take the total over it is left out of the commit entirely (a later session
 # continues it from its last committed state, or from scratch) unless --force is given. Only

@@ -1,4 +1,4 @@
-"""Generate the documentation pages that list what the registries hold.
+"""Maintainers: regenerate the documentation's generated pages (catalogues, leaderboards, model cards, tables).
 
 ``python scripts/docs_gen.py`` writes ``docs/tasks.md`` (every built-in task spec) and
 ``docs/trackers.md`` (every registered tracker, with parameter counts from ``describe()``, which

@@ -10,8 +10,9 @@ when a generated page differs from what these sources give now.
   rewritten for the site), and the "Leaderboards" section of ``mkdocs.yml``'s nav;
 * the headline block of ``docs/index.md``: the benchmark tasks' leaderboards in brief, LOCATA's
   published Table II averages (marked published) and the RMSAE-against-T60 figure;
-* ``<!-- leaderboard: TASK -->`` blocks (a task's table in brief) and ``<!-- compare: A.json B.json -->``
-  blocks (``doabench compare``'s verdicts) in any page, e.g. ``docs/results.md``;
+* ``<!-- leaderboard: TASK -->`` blocks (a task's table in brief), ``<!-- compare: A.json B.json -->``
+  blocks (``doabench compare``'s verdicts) and ``<!-- results: A.json ... -->`` blocks (results files in
+  brief) in any page, e.g. ``docs/results.md``;
 * ``docs/model-cards.md``: one card per shipped weights file, from its training record.
 """
 from __future__ import annotations
@@ -219,7 +220,7 @@ def compare_block(files: list[str], root: Path = ROOT) -> str:
     cmp._distinct_labels(runs)
     rows = []
     for other in runs[1:]:
-        c = cmp.compare(runs[0], other)
+        c = cmp.compare(runs[0], other, only=("rmsae_all", "rmsae_nonsilent"))
         pooled = {r.metric.key: r for r in c.pooled}
         a, v = pooled["rmsae_all"], pooled["rmsae_nonsilent"]
         rows.append([f"`{runs[0].label}` − `{other.label}`", f"{cmp._diff_text(a)}, {a.verdict}",
@@ -229,15 +230,35 @@ def compare_block(files: list[str], root: Path = ROOT) -> str:
                              "per cell (RMSAE all frames)"], rows) + ["", f"`{command}`"]) + "\n"
 
 
-_BLOCK = re.compile(r"(<!-- (leaderboard|compare): ([^>]*?) -->\n)(.*?)(<!-- end of \2 -->)", re.S)
+def results_block(files: list[str], root: Path = ROOT) -> str:
+    """Committed results files in brief: tracker, task, episodes, RMSAE all frames and voice-active
+    with their 95 % intervals, as ``doabench run`` wrote them."""
+    rows = []
+    for f in files:
+        r = json.loads((root / f).read_text())
+        s, task = r["summary"], r["task"]
+        ci = lambda k: (f"{s[k]:.2f} [{s[k + '_ci95'][0]:.2f}, {s[k + '_ci95'][1]:.2f}]"  # noqa: E731
+                        if s.get(k + "_ci95") else f"{s[k]:.2f}")
+        tracker = r["tracker"].get("id") or r["tracker"].get("name")
+        rows.append([f"`{tracker}`", f"`{task['id']}` v{task.get('version')}", str(task.get("episodes_run")),
+                     ci("rmsae_all"), ci("rmsae_nonsilent"), f"`{f}`"])
+    return "\n".join(_table(["tracker", "task", "episodes", "RMSAE all frames [95% CI]", "RMSAE voice-active [95% CI]",
+                             "results file"], rows)) + "\n"
+
+
+_BLOCK = re.compile(r"(<!-- (leaderboard|compare|results): ([^>]*?) -->\n)(.*?)(<!-- end of \2 -->)", re.S)
 
 
 def with_blocks(page: str, root: Path = ROOT, link: str = "leaderboards/") -> str:
-    """``page`` with every ``<!-- leaderboard: TASK -->`` and ``<!-- compare: A B ... -->`` block
-    (each closed by ``<!-- end of leaderboard -->`` / ``<!-- end of compare -->``) filled in."""
+    """``page`` with every ``<!-- leaderboard: TASK -->``, ``<!-- compare: A B ... -->`` and
+    ``<!-- results: A B ... -->`` block (each closed by ``<!-- end of leaderboard -->``, ``<!-- end of
+    compare -->``, ``<!-- end of results -->``) filled in."""
     def fill(m: re.Match) -> str:
         kind, arg = m.group(2), m.group(3).split()
-        body = "\n".join(brief_table(arg[0], root, link=link)) + "\n" if kind == "leaderboard" else compare_block(arg, root)
+        if kind == "leaderboard":
+            body = "\n".join(brief_table(arg[0], root, link=link)) + "\n"
+        else:
+            body = compare_block(arg, root) if kind == "compare" else results_block(arg, root)
         return m.group(1) + body + m.group(5)
 
     return _BLOCK.sub(fill, page)

@@ -1,4 +1,4 @@
-"""The import graph of the ``doabench`` package, from its source alone (``ast``, nothing imported).
+"""Maintainers: the import graph of the ``doabench`` package, from its source alone (``ast``, nothing imported).
 
 Every ``import`` / ``from ... import`` statement counts, at any depth (inside functions, ``if``
 blocks, ``try``): a lazy import still ties the two modules together. ``TYPE_CHECKING`` blocks

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerates the embedded default speech clips in doabench/data/speech/.
+# Maintainers: regenerate the embedded default speech clips in doabench/data/speech/.
 #
 # The clips are synthesised by this project with eSpeak NG (Debian package espeak-ng) from
 # sentences written for doabench, then resampled to 16 kHz mono 16-bit FLAC with SoX. Different

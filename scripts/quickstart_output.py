@@ -1,4 +1,4 @@
-"""Generate the output that docs/quickstart.md shows, from the commands it describes.
+"""Maintainers: generate the output that docs/quickstart.md shows, from the commands it describes.
 
 ``python scripts/quickstart_output.py`` runs the Makefile's ``demo`` command (into a scratch folder
 under the git-ignored ``runs/``, shown as the Makefile's ``DEMO_OUT``) and counts the tests

@@ -1,18 +1,15 @@
-"""Markdown table of a training run's progress from its log.csv (every Nth epoch, the best, the last).
+"""Maintainers: a Markdown table of a training run's progress from its log.csv (every Nth epoch, the best, the last).
 
     python scripts/run_progress.py training-runs/cross3d-16x32/log.csv [--every 5]
-    python scripts/run_progress.py training-runs/cross3d-16x32/log.csv --update docs/results.md
 
-``--update FILE`` replaces the table between ``<!-- run-progress:begin -->`` and
-``<!-- run-progress:end -->`` in FILE (docs/results.md, "Paper-scale runs") instead of printing it;
-the numbers are the log's, rounded.
+The numbers are the log's, rounded; the model cards in docs/model-cards.md show the same table
+(scripts/docs_site.py imports :func:`progress_table`).
 """
 from __future__ import annotations
 
 import argparse
 import csv
 import json
-import re
 import sys
 from pathlib import Path
 
@@ -51,18 +48,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log", type=Path)
     ap.add_argument("--every", type=int, default=5)
-    ap.add_argument("--update", type=Path, help="Markdown file whose run-progress block to rewrite")
     args = ap.parse_args()
-    table = progress_table(args.log, args.every)
-    if args.update is None:
-        sys.stdout.write(table)
-        return
-    text = args.update.read_text(encoding="utf-8")
-    pattern = r"(<!-- run-progress:begin -->\n)(.*?)(<!-- run-progress:end -->)"
-    if not re.search(pattern, text, re.S):
-        raise SystemExit(f"{args.update} has no run-progress block")
-    args.update.write_text(re.sub(pattern, lambda m: m.group(1) + table + m.group(3), text, flags=re.S),
-                           encoding="utf-8")
+    sys.stdout.write(progress_table(args.log, args.every))
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Start of a working session: set up .venv if needed and resume the paper-scale training queue
-# in the background (nice 10), with the session's deadline so that a run whose state is too
+# Maintainers: at the start of a working session, set up .venv and resume the training queue.
+# The queue runs in the background (nice 10), with the session's deadline so that a run whose state is too
 # large to commit mid-run is only started when it can finish (scripts/train_queue.sh). Its log
 # goes to runs/queue.log. End the session with scripts/commit_run_state.sh.
 #

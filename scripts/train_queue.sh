@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The paper-scale training queue of issue 12, in the issue's order: Cross3D 16x32, 8x16, 4x8,
-# gcc-cnn1d, max-cnn1d (64x128 maxima), then seldnet before spec-cnn2d (seldnet is 3x cheaper
+# Maintainers: train every shipped learned tracker in turn (the training queue), resuming and exporting each.
+# The order: Cross3D 16x32, 8x16, 4x8, gcc-cnn1d, max-cnn1d (64x128 maxima), then seldnet before spec-cnn2d (seldnet is 3x cheaper
 # per trajectory, and spec-cnn2d's recipe is under review: see docs/training.md), all with `doabench train`'s paper
 # preset on sim-train (an entry may name another preset, e.g. finetune, which starts from the
 # tracker's shipped weights instead of weights=random). Each run resumes from
@@ -41,20 +41,20 @@ fi
 # 1.42x faster in wall time with a training run beside it (docs/training.md). Costs per trajectory (item,
 # step) in docs/training.md ("The training queue and the run-state budget", from
 # benchmarks/bench_training.py --trackers): the 1D CNNs cost about what cross3d:8x16 does, whose
-# run did 5.8 trajectories/s on session 6's AMD EPYC (about 2.2 h for 46,800; the budget keeps a
+# run did 5.8 trajectories/s on an AMD EPYC (about 2.2 h for 46,800; the budget keeps a
 # margin). spec-cnn2d and seldnet are step-bound (0.90 and 0.26 CPU-s) and train on T60 0-0.3 s
-# (the trainer's default for them) for 18 epochs, 10,530 trajectories (the issue's >= 10,000;
+# (the trainer's default for them) for 18 epochs, 10,530 trajectories (the paper's >= 10,000;
 # second phase from epoch 9); their states (1.9 M and 0.1 M parameters) may be committed at every
 # session's end.
 # A threads field "B/F" means B threads where the CPU trains in bf16 (native bf16: the data workers
 # are the bottleneck) and F where it trains in fp32 (no native bf16, e.g. an AVX2-only AMD EPYC):
 # there Cross3D 16x32's fp32 step costs ~2.1 CPU-s per trajectory against ~0.8 for its item, so with
 # one thread the second core idled ~2/3 of the time; 2 threads took the run from 0.467 to 0.65-0.69
-# trajectories/s (session 13, docs/training.md).
+# trajectories/s (docs/training.md).
 # The paper preset trains from scratch (weights=random), finetune starts from shipped weights.
-# cross3d-16x32-v3 (session 12): the shipped Cross3D 16x32 trained on sim-train v1 (talkers walk on
+# cross3d-16x32-v3: the shipped Cross3D 16x32 trained on sim-train v1 (talkers walk on
 # through their pauses), every other model on v3; the same recipe on v3 says whether the v3 data
-# changes the 16x32 model's sim-grid score (issue 12's targets). It exports beside the v1 model
+# changes the 16x32 model's sim-grid score. It exports beside the v1 model
 # (cross3d-16x32-v3.safetensors, used with --tracker-opt weights=FILE) and replaces it as the
 # default only if it scores better (docs/results.md).
 # cross3d-16x32-moving and cross3d-8x16-moving: the paper recipe on sim-train-moving (the paper's

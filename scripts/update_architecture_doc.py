@@ -1,4 +1,4 @@
-"""Rewrite the generated blocks of docs/architecture.md (import graph and table) from the tree.
+"""Maintainers: rewrite the generated blocks of docs/architecture.md (import graph and table) from the tree.
 
     python scripts/update_architecture_doc.py
 

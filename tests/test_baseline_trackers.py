@@ -121,7 +121,7 @@ def test_a_zero_network_output_keeps_the_previous_direction():
     first = tracker._direction(np.array([0.0, 2.0, 0.0]))
     assert np.allclose(first, [0, 1, 0])
     assert np.allclose(tracker._direction(np.zeros(3)), [0, 1, 0])
-    with pytest.raises(TrackerError):  # a NaN output is never turned into a held estimate (issue 14)
+    with pytest.raises(TrackerError):  # a NaN output is never turned into a held estimate
         tracker._direction(np.array([np.nan, 0, 0]))
 
 

@@ -1,4 +1,4 @@
-"""`doabench export --format onnx` (issue 15): the full-sequence network, checked against
+"""`doabench export --format onnx`: the full-sequence network, checked against
 onnxruntime (the `onnx` extra; skipped without it)."""
 from __future__ import annotations
 

@@ -264,7 +264,7 @@ def test_microphone_geometry_is_the_time_average_with_its_spread():
     assert spread == pytest.approx(0.002)
 
 
-# -- the paper's protocol (issue 15) -----------------------------------------------------------------
+# -- the paper's protocol -----------------------------------------------------------------
 def test_invalid_frames_keep_their_maps_but_are_not_scored(corpus):
     """valid_flag = 0 frames: excluded from scoring, but their maps reach the tracker unzeroed."""
     from doabench.envs.env import DoaEnv

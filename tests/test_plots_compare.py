@@ -1,4 +1,4 @@
-"""Comparing runs in figures (issue 15): `plot episode A.json B.json`, `plot rmsae-vs-t60` on
+"""Comparing runs in figures: `plot episode A.json B.json`, `plot rmsae-vs-t60` on
 per-cell results files, colour bars on maps."""
 from __future__ import annotations
 

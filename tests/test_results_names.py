@@ -1,4 +1,4 @@
-"""Results files never silently replace a different configuration (issue 15): tracker options
+"""Results files never silently replace a different configuration: tracker options
 and exact delays name the file by a configuration hash; a file of the same name with another
 configuration (weights, task version) is refused unless --overwrite."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The results JSON Schema (issue 15): shipped in the package, committed files and freshly written
+"""The results JSON Schema: shipped in the package, committed files and freshly written
 ones follow it, and a broken file fails it. (conftest validates every file tests write.)"""
 from __future__ import annotations
 

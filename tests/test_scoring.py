@@ -105,21 +105,26 @@ def test_vad_truth_needs_a_truth_table(tmp_path, capsys):
     assert "--vad truth" in err and "\n" not in err and "Traceback" not in err
 
 
-def test_scripts_score_results_frames_as_run_does(tmp_path):
-    """pause_hold_bound.py's tracker column equals the results' own RMSAEs on a planar array file
-    with invalid frames (the scripts go through doabench.metrics.score_frames)."""
-    import subprocess
-    import sys
-
+def test_compare_scores_results_frames_as_run_does(tmp_path, capsys):
+    """`doabench compare --silence` splits a results file's per-frame error as `doabench run` scored
+    it, on a planar array file with invalid frames (through doabench.metrics.score_frames): its
+    voice-active row is the run's non-silent RMSAE and its rows after the first voice the
+    all-frames one."""
     truth = np.array([[0.6, 0.0, -0.8], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.6, 0.8]])
     est = np.array([[0.6, 0.0, 0.8], [0.0, 0.8, 0.6], [0.0, 0.0, 1.0], [0.0, 0.6, 0.8]])
     vad, valid = [True, True, True, False], [True, True, False, True]
     m = score_frames(est, truth, np.array(vad), np.array(valid), planar=True).summary()
-    results = {"tracker": {"id": "t"}, "task": {"id": "x", "version": 1}, "scoring": {"planar_fold": True},
+    results = {"schema": "doabench.results/1", "tracker": {"id": "t"}, "task": {"id": "x", "version": 1},
+               "scoring": {"planar_fold": True}, "episodes": [{"episode": 0, "seed": 1}],
                "frames": [{"times": [0.1, 0.3, 0.5, 0.7], "estimates": est.tolist(), "truth": truth.tolist(),
                            "vad": vad, "valid": valid}]}
     path = tmp_path / "r.json"
     path.write_text(json.dumps(results))
-    out = subprocess.run([sys.executable, str(ROOT / "scripts" / "pause_hold_bound.py"), str(path)],
-                         capture_output=True, text=True, check=True).stdout
-    assert f"| r.json | {m['rmsae_all']:.2f} | {m['rmsae_nonsilent']:.2f} |" in out
+    assert main(["compare", str(path), "--silence"]) == 0
+    rows = {line.split("|")[1].strip(): line.split("|")[2:5] for line in capsys.readouterr().out.splitlines()
+            if line.startswith("| ") and line.count("|") == 5}
+    assert float(rows["0 (voice-active)"][1]) == pytest.approx(m["rmsae_nonsilent"], abs=0.005)
+    # the first frame is voice-active, so every scored frame (3 of 4: one has invalid truth) comes after it
+    assert rows["before the first voice"][0].strip() == "0"
+    after = rows["after the first voice (all but the row above)"]
+    assert int(after[0]) == 3 and float(after[1]) == pytest.approx(m["rmsae_all"], abs=0.005)

@@ -1,4 +1,4 @@
-"""A learned tracker without trained weights refuses to run (issues 12, 15) unless weights=random is
+"""A learned tracker without trained weights refuses to run unless weights=random is
 given on purpose; such runs are marked untrained in the results and on the leaderboards. Building
 the model (describe, docs, training from scratch) still works."""
 from __future__ import annotations

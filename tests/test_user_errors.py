@@ -1,4 +1,4 @@
-"""Errors a new user meets (issue 15): plugin import errors name the module or class, Python
+"""Errors a new user meets: plugin import errors name the module or class, Python
 callers are told the keyword argument, `python -m doabench` works."""
 from __future__ import annotations
 

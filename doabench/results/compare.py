@@ -33,7 +33,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from doabench.errors import InputError
-from doabench.metrics import LAG_MAX_S, LAG_STEP_S, STATIC_SPEED_DEG_S, THRESHOLDS_DEG, frame_errors_deg, lag_grid
+from doabench.metrics import LAG_MAX_S, LAG_STEP_S, STATIC_SPEED_DEG_S, THRESHOLDS_DEG, lag_grid, score_frames
 
 N_RESAMPLES = 2000
 LEVEL = 0.95
@@ -117,10 +117,13 @@ class Pairing:
 
 
 def _frames_by_episode(run: Run) -> dict[int, dict[str, Any]] | None:
+    """The run's per-frame estimates by episode index (None without them), each carrying whether
+    the run folds directions onto a plane (a planar array), as its scores did."""
     frames = run.results.get("frames")
     if not frames or len(frames) != len(run.rows) or any(f is None for f in frames):
         return None
-    return {int(row["episode"]): f for row, f in zip(run.rows, frames)}
+    planar = bool((run.results.get("scoring") or {}).get("planar_fold"))
+    return {int(row["episode"]): {**f, "planar": planar} for row, f in zip(run.rows, frames)}
 
 
 def pair(a: Run, b: Run) -> Pairing:
@@ -268,17 +271,18 @@ def _unit(a: Any) -> np.ndarray:
 
 
 def episode_frames(frame: dict[str, Any], hold: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(errors deg, vad, frames since voice)`` of an episode's scored frames (truth defined),
-    with the estimates held after ``hold`` silent frames when given (the learned trackers' rule)."""
+    """``(errors deg, vad, frames since voice)`` of an episode's scored frames, scored as ``doabench
+    run`` scores (:func:`doabench.metrics.score_frames`: invalid truth left out, a planar array's
+    directions folded), with the estimates held after ``hold`` silent frames when given (the
+    learned trackers' rule)."""
     est, truth = _unit(frame["estimates"]), _unit(frame["truth"])
     vad = np.asarray(frame["vad"], bool).reshape(-1)
     if hold is not None:
         from doabench.trackers.hold import hold_in_silences
 
         est = hold_in_silences(est, vad, hold)
-    since = frames_since_voice(vad)
-    ok = np.all(np.isfinite(truth), axis=1) & np.all(np.isfinite(est), axis=1)
-    return frame_errors_deg(est[ok], truth[ok]), vad[ok], since[ok]
+    scored = score_frames(est, truth, vad, frame.get("valid"), bool(frame.get("planar")))
+    return scored.errors, scored.vad, frames_since_voice(vad)[scored.keep]
 
 
 def _frame_rms_stats(select: Callable[[np.ndarray, np.ndarray], np.ndarray], hold: int | None = None) -> Callable:
@@ -459,26 +463,24 @@ class Comparison:
 
 
 def compare(a: Run, b: Run, silence: bool = False, holds: Sequence[int] = (), n_resamples: int = N_RESAMPLES,
-            seed: int = 0) -> Comparison:
-    """Pair ``a`` and ``b`` and compare every metric both carry, pooled and per cell."""
+            seed: int = 0, only: Sequence[str] | None = None) -> Comparison:
+    """Pair ``a`` and ``b`` and compare every metric both carry (or those named in ``only``),
+    pooled and per cell."""
     p = pair(a, b)
     frames = p.frames_a is not None and p.frames_b is not None
     notes = []
-    planar = any(bool((r.results.get("scoring") or {}).get("planar_fold")) for r in (a, b))
     if (silence or holds) and not frames:
         missing = [str(r.path) for r, f in ((a, p.frames_a), (b, p.frames_b)) if f is None]
         raise InputError(f"--silence and --hold need per-frame estimates, which {', '.join(missing)} lacks "
                          "(written with --no-frames); run it again without --no-frames")
-    if frames and planar:
-        frames = False
-        notes.append("median, p90 and the silence breakdown are left out: the runs fold directions onto a plane, "
-                     "which their per-frame estimates do not show")
-    elif not frames:
+    if not frames:
         notes.append("median and p90 need per-frame estimates (results written without --no-frames)")
     recordings = all(r.get("recording") is not None for r in p.rows_a)
     metrics = summary_metrics(p.rows_a, p.rows_b, frames, recordings)
     if frames and (silence or holds):
         metrics += silence_metrics(holds)
+    if only is not None:
+        metrics = [m for m in metrics if m.key in only]
     everything = np.arange(p.n)
     strata = list(p.cells.values()) or [everything]
     pooled = [compare_scope(p, m, everything, strata, "pooled", n_resamples, seed) for m in metrics]
@@ -516,19 +518,18 @@ def silence_breakdown(frames: Sequence[dict[str, Any]]) -> list[tuple[str, int, 
 
 def hold_the_truth(frames: Sequence[dict[str, Any]]) -> float:
     """RMSAE over all frames of an oracle that knows the true direction of every voice-active
-    frame and holds the last one through silent frames (90° before the first voice-active frame):
-    what any tracker that holds its last direction can reach on these episodes."""
+    frame and holds the last one through silent frames (90° before the first voice-active frame),
+    scored as the runs are: what any tracker that holds its last direction can reach on these
+    episodes."""
     sq, n = 0.0, 0
     for f in frames:
         truth = _unit(f["truth"])
         vad = np.asarray(f["vad"], bool).reshape(-1)
-        ok = np.all(np.isfinite(truth), axis=1)
         last = np.maximum.accumulate(np.where(vad, np.arange(len(vad)), -1))
-        err = np.full(len(vad), 90.0)
-        seen = last >= 0
-        err[seen] = frame_errors_deg(truth[last[seen]], truth[seen])
-        sq += float(np.square(err[ok]).sum())
-        n += int(ok.sum())
+        scored = score_frames(truth[np.maximum(last, 0)], truth, vad, f.get("valid"), bool(f.get("planar")))
+        err = np.where((last < 0)[scored.keep], 90.0, scored.errors)
+        sq += float(np.square(err).sum())
+        n += err.size
     return math.sqrt(sq / n) if n else float("nan")
 
 

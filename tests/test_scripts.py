@@ -1,0 +1,36 @@
+"""scripts/ holds maintainers' tools only: each script says what it is for in its first line (after a
+shell script's #! line), starting with "Maintainers"; what a user needs is a doabench command."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted(p for p in (ROOT / "scripts").iterdir() if p.suffix in (".py", ".sh"))
+
+
+def purpose_line(path: Path) -> str:
+    """A Python script's docstring's first line; a shell script's first comment line after #!."""
+    if path.suffix == ".py":
+        doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+        return doc.splitlines()[0] if doc else ""
+    lines = path.read_text().splitlines()
+    body = lines[1:] if lines and lines[0].startswith("#!") else lines
+    return body[0].lstrip("# ").strip() if body and body[0].startswith("#") else ""
+
+
+def test_every_script_says_what_it_is_for_in_its_first_line() -> None:
+    assert SCRIPTS, "no scripts found"
+    missing = [p.name for p in SCRIPTS if not purpose_line(p).startswith("Maintainers")
+               or len(purpose_line(p).split()) < 6]
+    assert not missing, f"first line must say, for maintainers, what the script is for: {missing}"
+
+
+def test_user_analysis_lives_in_commands_not_scripts() -> None:
+    """The paired comparison and the silence breakdowns are `doabench compare` options now."""
+    gone = ("cross3d_targets.py", "silence_errors.py", "pause_hold_bound.py", "compare_grid_runs.py")
+    assert not [name for name in gone if (ROOT / "scripts" / name).exists()]
+    from doabench.cli.main import build_parser
+
+    help_text = build_parser()._subparsers._group_actions[0].choices["compare"].format_help()
+    assert "--silence" in help_text and "--hold" in help_text and "--plot" in help_text
