@@ -94,13 +94,13 @@ def save_weights(path: str | Path, model: nn.Module, metadata: Mapping[str, Any]
     from safetensors.torch import save_file
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
-    tmp = path.with_name(path.name + ".tmp")
-    save_file(tensors, str(tmp), metadata={METADATA_KEY: json.dumps(dict(metadata), sort_keys=True),
-                                           "model": str(metadata.get("model")),
-                                           "resolution": str(metadata.get("resolution"))})
-    tmp.replace(path)  # atomic: a crash never leaves a half-written weight file under the real name
+    # doabench's output rule: atomic for a file (a crash never leaves a half-written weight file
+    # under the real name), written through for a stream, a symbolic link's target kept a link.
+    with doabench.atomic_path(path, suffix=".safetensors") as tmp:
+        save_file(tensors, str(tmp), metadata={METADATA_KEY: json.dumps(dict(metadata), sort_keys=True),
+                                               "model": str(metadata.get("model")),
+                                               "resolution": str(metadata.get("resolution"))})
     if _is_shipped(path):
         update_manifest(path)
     return path
@@ -129,9 +129,8 @@ def update_manifest(path: str | Path) -> None:
     entries = read_manifest(path.parent)
     entries[path.name] = sha256_file(path)
     text = "".join(f"{digest}  {name}\n" for name, digest in sorted(entries.items()))
-    tmp = path.parent / f".{MANIFEST_NAME}.tmp"
-    tmp.write_text(text)
-    tmp.replace(path.parent / MANIFEST_NAME)
+    with doabench.atomic_path(path.parent / MANIFEST_NAME) as tmp:
+        tmp.write_text(text)
 
 
 def verify_shipped(path: str | Path) -> None:

@@ -79,7 +79,7 @@ def run(tracker, task, **kwargs):
 
 
 def __getattr__(name: str) -> Any:
-    """``TrainableTracker``, ``single_threaded`` and ``ObservationPlan`` on first use: ``import
+    """``TrainableTracker``, ``single_threaded``, ``ObservationPlan`` and ``atomic_path`` on first use: ``import
     doabench`` stays light (the first two's modules import torch; the third's imports gymnasium and
     builds on torch)."""
     if name == "TrainableTracker":
@@ -97,18 +97,23 @@ def __getattr__(name: str) -> Any:
 
         globals()[name] = ObservationPlan
         return ObservationPlan
+    if name == "atomic_path":  # the output rule (docs/guarantees.md), for plug-ins that write files
+        from doabench.results.files import atomic_path
+
+        globals()[name] = atomic_path
+        return atomic_path
     raise AttributeError(f"module 'doabench' has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan", "single_threaded"})
+    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan", "atomic_path", "single_threaded"})
 
 
 available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
     "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ResetContext",
-    "TaskSpec", "Tracker", "TrainableTracker", "available_tasks", "available_trackers", "get_array", "get_task_spec",
+    "TaskSpec", "Tracker", "TrainableTracker", "atomic_path", "available_tasks", "available_trackers", "get_array", "get_task_spec",
     "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",
     "srp_maps",
 ]

@@ -34,3 +34,17 @@ class TrackerError(DoabenchError, RuntimeError):
 
 class DependencyError(DoabenchError, ImportError):
     """An optional dependency (gpuRIR, ...) is missing."""
+
+
+class OutputError(DoabenchError):
+    """An output cannot be written (full disk, read-only file system, permission, quota) or is a
+    path doabench never writes (a folder, a block device, a broken symbolic link)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """The command was stopped by a signal (SIGTERM; Ctrl-C is SIGINT). A KeyboardInterrupt, so
+    every ``finally`` and ``except BaseException`` cleanup runs as it does for Ctrl-C."""
+
+    def __init__(self, signal_name: str = "SIGTERM") -> None:
+        super().__init__(signal_name)
+        self.signal_name = signal_name

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from doabench.errors import ConfigError, DoabenchError
+from doabench.errors import ConfigError, DoabenchError, OutputError
 
 
 @dataclass
@@ -181,6 +181,8 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
             try:
                 _finish(run, execute_run(run.tracker, run.task, out, *args, progress=progress), out, options, delays,
                         overwrite)
+            except OutputError:
+                raise  # a full disk or read-only folder fails every later run too: stop, journals kept
             except DoabenchError as exc:
                 run.status, run.error = "failed", str(exc)
             run.seconds = time.perf_counter() - t0
@@ -224,7 +226,7 @@ def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, address: str | None
                     _finish(run, ray.get(ready[0]), out, options=args[2], delays=args[1], overwrite=overwrite)
                 except Exception as exc:
                     exc = unwrap(exc)
-                    if not isinstance(exc, DoabenchError):
+                    if not isinstance(exc, DoabenchError) or isinstance(exc, OutputError):
                         raise exc
                     run.status, run.error = "failed", str(exc)
                 run.seconds = time.perf_counter() - t0

@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 if TYPE_CHECKING:
     from doabench.trackers.base import Tracker
@@ -73,6 +74,20 @@ def use_threads(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
 
 
+def command_line(args: argparse.Namespace, add: Iterable[str] = ()) -> str:
+    """The command as it was typed (``doabench run ...``), quoted for a shell, with ``add``'s
+    arguments appended where missing (``--resume``): what a stop message tells the user to run."""
+    argv = list(getattr(args, "argv", None) or [])
+    argv += [a for a in add if a not in argv]
+    return shlex.join(["doabench", *argv])
+
+
+def set_interrupt_note(args: argparse.Namespace, note: Callable[[], str]) -> None:
+    """What ``doabench`` prints after "stopped by Ctrl-C;" when the command is interrupted: a
+    function called then, so it can count what was kept (episodes journalled, parts written)."""
+    args.interrupt_note = note
+
+
 def corpus_kwargs(args: argparse.Namespace) -> dict:
     out = {"backend": args.backend}
     if args.librispeech:
@@ -105,29 +120,47 @@ def _check_writable_folder(folder: Path, option: str, target: Path) -> None:
     if not probe.is_dir():
         raise InputError(f"{option} {target}: {probe} is not a folder")
     if not os.access(probe, os.W_OK | os.X_OK):
-        raise InputError(f"{option} {target}: folder {probe} is not writable")
+        try:
+            read_only = bool(os.statvfs(probe).f_flag & os.ST_RDONLY)
+        except OSError:
+            read_only = False
+        why = "is on a read-only file system" if read_only else "is not writable (permission denied)"
+        raise InputError(f"{option} {target}: folder {probe} {why}")
 
 
 def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), option: str = "--out") -> Path:
-    """Refuse, before any computation, an output file that is a folder, lies in an unwritable
-    folder, or is one of the inputs (writing it would destroy the input)."""
-    from doabench.errors import InputError
+    """Refuse, before any computation, an output file that doabench never writes (a folder, a block
+    device, a broken symbolic link: :func:`doabench.results.files.resolve_output`), that lies in an
+    unwritable folder, or that is one of the inputs (writing it would destroy the input). A stream
+    (``-``, a FIFO, a character device) is written through and needs no folder."""
+    from doabench.errors import InputError, OutputError
+    from doabench.results.files import resolve_output
 
     out = Path(path)
-    if out.is_dir():
-        raise InputError(f"{option} {out} is a folder; give a file name")
+    try:
+        target = resolve_output(path)
+    except OutputError as exc:
+        raise InputError(f"{option} {str(exc).removeprefix('cannot write ')}") from None
+    if target.stream:
+        return out
     for source in inputs:
-        if source is not None and _same_file(out, Path(source)):
+        if source is not None and _same_file(target.path, Path(source)):
             raise InputError(f"{option} {out} is also an input ({source}); writing it would destroy that input")
-    _check_writable_folder(out.parent if str(out.parent) else Path("."), option, out)
+    _check_writable_folder(target.path.parent if str(target.path.parent) else Path("."), option, out)
     return out
 
 
 def check_output_folder(path: str | Path, option: str = "--out") -> Path:
-    """Refuse, before any computation, an output folder that is a file or cannot be written."""
+    """Refuse, before any computation, an output folder that is a file, a stream (``-``, a FIFO,
+    a device: a folder of files cannot be written through), a broken symbolic link, or that
+    cannot be written. A symbolic link to a folder is followed."""
     from doabench.errors import InputError
 
     out = Path(path)
+    if str(path) == "-":
+        raise InputError(f"{option} - (standard output): this command writes a folder of files; give a folder")
+    if out.is_symlink() and not out.exists():
+        raise InputError(f"{option} {out} is a symbolic link to {os.path.realpath(out)}, which does not exist")
     if out.exists() and not out.is_dir():
         raise InputError(f"{option} {out} is a file, not a folder")
     _check_writable_folder(out, option, out)

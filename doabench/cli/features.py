@@ -107,11 +107,14 @@ def run(args) -> int:
         raise ConfigError(f"--out {out} must not end in .json: the sidecar gets that name")
     if not out.parent.is_dir():
         raise NotFoundError(f"output directory {out.parent} does not exist")
-    sidecar = out.with_suffix(".json")
     from doabench.cli.common import check_output_file
+    from doabench.results.files import resolve_output
 
     check_output_file(out, [args.recording, args.array], "--out")
-    check_output_file(sidecar, [args.recording, args.array], "--out (its .json sidecar)")
+    # A stream (-, /dev/stdout, a FIFO) carries the .npy alone: no sidecar beside a device or a pipe.
+    sidecar = None if resolve_output(out).stream else out.with_suffix(".json")
+    if sidecar is not None:
+        check_output_file(sidecar, [args.recording, args.array], "--out (its .json sidecar)")
     array = get_array(args.array)
     spec = FrameSpec(args.window, args.hop, args.fs)
     resolution = parse_resolution(args.resolution)
@@ -150,6 +153,9 @@ def run(args) -> int:
 
             raise InputError(f"{path} holds fewer samples than its header says ({written} frames of "
                              f"{shape[0]} read): is it truncated?")
+    if sidecar is None:
+        print(f"wrote {out} {tuple(result.shape)} (a stream: no .json sidecar)")
+        return 0
     meta = _sidecar(args, extractor, result, sr, resampled)
     write_text(sidecar, json.dumps(meta) + "\n")
     print(f"wrote {out} {tuple(result.shape)} and {sidecar}")

@@ -21,7 +21,7 @@ import urllib.request
 from pathlib import Path
 
 from doabench.corpora.speech import LIBRISPEECH_SUBSETS
-from doabench.errors import ConfigError, DoabenchError, InputError
+from doabench.errors import ConfigError, DoabenchError, InputError, OutputError
 
 DEFAULT_BASE_URL = "https://www.openslr.org/resources/12"
 # As published by OpenSLR in https://www.openslr.org/resources/12/md5sum.txt.
@@ -71,7 +71,11 @@ def _fetch(url: str, part: Path, progress: bool, timeout: float) -> None:
             desc=part.name.removesuffix(".part"), disable=not progress,
         ) as bar:
             while block := response.read(CHUNK):
-                f.write(block)
+                try:
+                    f.write(block)
+                except OSError as exc:  # a full disk or quota is not a network error: no retry
+                    raise OutputError(f"cannot write {part}: {exc.strerror or exc}; what was downloaded is "
+                                      "kept, run the same command again to resume") from None
                 bar.update(len(block))
         if total is not None and part.stat().st_size < total:
             raise ConnectionError(f"connection closed after {part.stat().st_size} of {total} bytes")
@@ -87,7 +91,7 @@ def download_file(url: str, target: Path, md5: str | None, retries: int = 3, pro
                 _fetch(url, part, progress, timeout)
                 break
             except (ConnectionError, TimeoutError, urllib.error.URLError, OSError) as exc:
-                if isinstance(exc, DownloadError):
+                if isinstance(exc, (DownloadError, OutputError)):
                     raise
                 if attempt == retries:
                     size = part.stat().st_size if part.exists() else 0

@@ -16,7 +16,12 @@ files, which are deleted). Running the same command again keeps the finished par
 rest and assembles: the result equals an uninterrupted run, because episode ``i`` is a pure
 function of the task and ``i``. ``<out>.parts/config.json`` holds the generation config; a resume
 with another task, features or options is refused. ``<out>.parts/lock`` (an ``flock``, released
-by the kernel even on SIGKILL) stops two runs from writing the same output.
+by the kernel even on SIGKILL, with the owner's pid) stops two runs from writing the same output:
+the second one gets one line naming the first.
+
+An ``out`` that is a stream (``-``, ``/dev/stdout``, a FIFO: the output rule of
+:mod:`doabench.results.files`) is generated in a temporary folder and written through when
+complete; such a run keeps no journal, so an interrupted one starts again.
 """
 from __future__ import annotations
 
@@ -40,7 +45,7 @@ from doabench.datasets.schema import (
 from doabench.envs.registry import get_task_spec
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, InputError
-from doabench.results.files import atomic_path
+from doabench.results.files import atomic_path, exclusive_lock, resolve_output
 
 # Config keys that may differ between shards of one dataset (see merge).
 SHARD_KEYS = ("episodes", "shard")
@@ -104,19 +109,10 @@ def describe_difference(a: dict[str, Any], b: dict[str, Any], keys: list[str]) -
 
 @contextlib.contextmanager
 def journal_lock(folder: Path) -> Iterator[None]:
-    """Exclusive ``flock`` on ``folder/lock`` (released by the kernel if the process dies)."""
-    import fcntl
-
-    fd = os.open(folder / "lock", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise InputError(f"another make-dataset is writing {folder} (its lock is held); wait for it "
-                             "or stop it") from None
+    """Exclusive lock ``folder/lock`` (released by the kernel if the process dies; the second
+    process is told the first one's pid)."""
+    with exclusive_lock(folder / "lock", f"{folder} (make-dataset's journal)"):
         yield
-    finally:
-        os.close(fd)
 
 
 def part_tag(config: dict[str, Any]) -> str:
@@ -165,6 +161,11 @@ def _init_worker(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], fold
 
     # One thread per process: the processes are the parallelism, and threads would fight over cores.
     torch.set_num_threads(1)
+    # Ctrl-C reaches the whole process group: the parent stops the run (and says what it kept);
+    # the workers finish their episode quietly instead of each printing a traceback.
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER.update(computer=EpisodeComputer(spec, requests, **computer_kwargs), folder=Path(folder),
                    compression=compression, tag=tag)
 
@@ -184,6 +185,7 @@ class GenerationResult:
     resumed: int
     seconds: float
     already_complete: bool = False
+    size: int = 0  # bytes of the file written (a stream's too)
 
     @property
     def episodes_per_minute(self) -> float:
@@ -219,6 +221,11 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
         raise ConfigError(f"unknown compression {compression!r}; choose from {', '.join(COMPRESSIONS)}")
     if workers is not None and int(workers) < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
+    if resolve_output(out).stream:
+        return _make_into_stream(out, task, dict(
+            episodes=episodes, features=features, shard=shard, workers=workers, float16=float16,
+            sample_vad=sample_vad, compression=compression, delays=delays, device=device, backend=backend,
+            progress=progress, engine=engine, ray_address=ray_address, **source_options))
     out = Path(out)
     from doabench.envs.sources import make_episode_source
 
@@ -235,17 +242,17 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
     folder = parts_dir(out)
 
     if out.exists():
-        existing = _existing_config(out)
-        diff = config_difference(existing, config)
-        if diff:
-            raise InputError(f"{out} exists and was made with another config "
-                             f"({describe_difference(existing, config, diff)}); remove it or choose another --out")
-        if folder.exists():  # killed after the final rename, before the journal was removed
-            shutil.rmtree(folder, ignore_errors=True)
-        return GenerationResult(out, len(indices), 0, len(indices), time.perf_counter() - start, True)
+        return _already_made(out, folder, config, indices, start)
 
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        from doabench.results.files import output_error
+
+        raise output_error(folder, exc) from None
     with journal_lock(folder):
+        if out.exists():  # another process finished it while this one waited for the lock
+            return _already_made(out, folder, config, indices, start)
         _check_journal_config(folder, out, config)
         tag = part_tag(config)
         done = scan_parts(folder, tag) & set(indices)
@@ -263,7 +270,35 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
         info = {"generated_by": generated_by, **_source_description(source)}
         assemble(out, folder, indices, config, spec, requests, info)
         shutil.rmtree(folder, ignore_errors=True)
-    return GenerationResult(out, len(indices), len(todo), len(done), time.perf_counter() - start)
+    return GenerationResult(out, len(indices), len(todo), len(done), time.perf_counter() - start,
+                            size=out.stat().st_size)
+
+
+def _already_made(out: Path, folder: Path, config: dict[str, Any], indices: list[int],
+                  start: float) -> GenerationResult:
+    """The result of a run whose file exists: nothing to do when it has this config, else refused."""
+    existing = _existing_config(out)
+    diff = config_difference(existing, config)
+    if diff:
+        raise InputError(f"{out} exists and was made with another config "
+                         f"({describe_difference(existing, config, diff)}); remove it or choose another --out")
+    if folder.exists():  # killed after the final rename, before the journal was removed
+        shutil.rmtree(folder, ignore_errors=True)
+    return GenerationResult(out, len(indices), 0, len(indices), time.perf_counter() - start, True,
+                            size=out.stat().st_size)
+
+
+def _make_into_stream(out: str | Path, task: str | TaskSpec, kwargs: dict[str, Any]) -> GenerationResult:
+    """``make_dataset(task, out, **kwargs)`` into a stream (``-``, a FIFO, a character device):
+    made in a temporary folder, then written through."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="doabench-dataset-") as scratch:
+        result = make_dataset(task, Path(scratch) / "data.h5", **kwargs)
+        with atomic_path(out) as tmp:
+            shutil.copyfile(result.path, tmp)
+    result.path = Path(out)
+    return result
 
 
 def _existing_config(out: Path) -> dict[str, Any]:
@@ -401,8 +436,11 @@ def assemble(out: Path, folder: Path, indices: Sequence[int], config: dict[str, 
     """Copy the parts of ``indices`` into ``<out>.partial`` and rename it to ``out`` (atomic)."""
     import h5py
 
-    # (a stale .partial from a killed assembly is removed first)
-    with atomic_path(out, tmp=partial_path(out)) as tmp:
+    # (a stale .partial from a killed assembly is removed first). The parts' raw chunks are copied:
+    # their total, with room for the file's own metadata, is reserved first (HDF5 would crash the
+    # process on a full disk instead of failing).
+    need = sum((folder / f"{episode_name(i)}.h5").stat().st_size for i in indices) + (1 << 20)
+    with atomic_path(out, tmp=partial_path(out), reserve=need) as tmp:
         with h5py.File(tmp, "w") as f:
             for k, v in file_attributes(config, spec.to_dict(), feature_names(requests), len(indices), info).items():
                 f.attrs[k] = v

@@ -8,6 +8,7 @@ episode as its own journal part file (``make-dataset``'s local workers and its R
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 from dataclasses import dataclass, field
@@ -134,8 +135,12 @@ def write_part(folder: Path, record: EpisodeRecord, compression: str, tag: str =
 
     name = episode_name(record.index)
     final = folder / f"{name}.h5"
+    # Built in memory, then written by Python: the HDF5 library crashes the process when the disk
+    # fills under it, while a Python write fails with an error the journal survives.
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as f:
+        f.attrs["part_config"] = tag
+        write_episode(f.create_group(EPISODES), record, compression)
     with atomic_path(final, tmp=folder / f".{name}.{os.getpid()}.tmp") as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["part_config"] = tag
-            write_episode(f.create_group(EPISODES), record, compression)
+        tmp.write_bytes(buffer.getbuffer())
     return final

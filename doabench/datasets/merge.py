@@ -85,7 +85,9 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path) -> dict[str, A
                         "versions": f.attr_json("versions", {}), "created": f.file.attrs.get("created")}
                        for f in files]
         config["merged_from"] = [{k: m[k] for k in ("file", "shard", "episodes")} for m in merged_from]
-        with atomic_path(out, tmp=partial_path(out)) as tmp:
+        # At most the sources' size: reserved first (HDF5 crashes the process on a full disk).
+        need = sum(f.path.stat().st_size for f in files if f in owner.values()) + (1 << 20)
+        with atomic_path(out, tmp=partial_path(out), reserve=need) as tmp:
             with h5py.File(tmp, "w") as dst:
                 for k, v in first.file.attrs.items():
                     dst.attrs[k] = v

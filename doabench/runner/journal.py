@@ -9,12 +9,11 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import os
 from pathlib import Path
 from typing import Any, Iterator
 
 from doabench.errors import InputError
-from doabench.results.files import to_json, write_text
+from doabench.results.files import append_line, exclusive_lock, to_json, write_text
 
 
 def lock_path(partial_path: str | Path) -> Path:
@@ -25,26 +24,12 @@ def lock_path(partial_path: str | Path) -> Path:
 
 @contextlib.contextmanager
 def run_lock(partial_path: str | Path) -> Iterator[None]:
-    """Exclusive ``flock`` of the run writing ``partial_path`` (two runs with the same ``--out``,
-    task and tracker would otherwise overwrite each other's journal and results). The kernel
-    releases it if the process dies; the lock file is removed when the run ends."""
-    import fcntl
-
-    path = lock_path(partial_path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise InputError(f"another doabench run is writing {Path(partial_path).parent} for this task and "
-                             f"tracker (its lock {path.name} is held); wait for it or stop it") from None
-        try:
-            yield
-        finally:
-            path.unlink(missing_ok=True)
-    finally:
-        os.close(fd)
+    """Exclusive lock of the run writing ``partial_path`` (two runs with the same ``--out``, task
+    and tracker would otherwise overwrite each other's journal and results): the second gets one
+    line naming the first one's pid. The kernel releases it if the process dies; the lock file is
+    removed when the run ends (:func:`doabench.results.files.exclusive_lock`)."""
+    with exclusive_lock(lock_path(partial_path), f"{Path(partial_path).parent} for this task and tracker"):
+        yield
 
 
 def config_hash(config: dict) -> str:
@@ -89,6 +74,14 @@ def load_journal(path: str | Path | None, config_hash: str) -> dict[int, dict]:
 
 
 def append_record(path: str | Path, record: dict[str, Any]) -> None:
-    """Journal one finished episode (a JSON-ready record) as one line."""
-    with open(path, "a") as f:
-        f.write(to_json(record, indent=None) + "\n")
+    """Journal one finished episode (a JSON-ready record) as one line; on a full disk the line is
+    cut off again and the error names the journal, which stays resumable."""
+    append_line(path, to_json(record, indent=None))
+
+
+def journal_count(path: str | Path) -> int:
+    """The finished episodes a journal holds (0 when there is none): for the stop message."""
+    try:
+        return max(0, len(Path(path).read_text().splitlines()) - 1)
+    except OSError:
+        return 0
