@@ -52,12 +52,15 @@ def main(args: argparse.Namespace) -> int:
     workers = args.workers
     if workers is None and not (args.engine == "ray" and args.ray_address):
         workers = 1
+    from doabench.cli.common import set_interrupt_note
+
+    set_interrupt_note(args, lambda: _kept(args))
     result = make_dataset(args.task, args.out, episodes=args.episodes, features=args.features,
                           shard=parse_shard(args.shard), workers=workers, float16=args.float16,
                           sample_vad=args.sample_vad, compression=args.compression, delays=args.delays,
                           device=args.device, backend=backend, progress=not args.quiet, engine=args.engine,
                           ray_address=args.ray_address, **options)
-    size = result.path.stat().st_size
+    size = result.size
     if result.already_complete:
         print(f"{result.path} is already complete ({result.n_episodes} episodes); nothing to do")
         return 0
@@ -65,3 +68,19 @@ def main(args: argparse.Namespace) -> int:
     print(f"wrote {result.path}: {result.n_episodes} episodes{resumed}, {size / result.n_episodes / 1e6:.2f} MB per "
           f"episode, {result.episodes_per_minute:.1f} episodes/min")
     return 0
+
+
+def _kept(args: argparse.Namespace) -> str:
+    """The stop message: the finished episodes the journal folder keeps, and how to resume."""
+    from doabench.cli.common import command_line
+    from doabench.datasets.generate import parts_dir
+    from doabench.results.files import resolve_output
+
+    if resolve_output(args.out).stream:
+        return f"nothing was written (a stream output keeps no journal); start it again with: {command_line(args)}"
+    folder = parts_dir(args.out)
+    n = len(list(folder.glob("[0-9]*.h5"))) if folder.is_dir() else 0
+    if not n:
+        return f"no episode had finished, nothing was kept; start it again with: {command_line(args)}"
+    return (f"{n} finished episode{'s' if n > 1 else ''} kept in {folder}; resume with the same command: "
+            f"{command_line(args)}")

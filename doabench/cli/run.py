@@ -32,7 +32,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.trackers.registry import parse_options
     from doabench.envs.registry import get_task_spec
 
-    from doabench.cli.common import check_output_folder, make_checked_tracker
+    from doabench.cli.common import check_output_folder, make_checked_tracker, set_interrupt_note
     from doabench.runner import run_lock
 
     check_output_folder(args.out)  # before the work, not after it
@@ -51,6 +51,7 @@ def main(args: argparse.Namespace) -> int:
     check_overwrite(out / f"{stem}.json", configuration(spec.id, spec.version, args.tracker, options,
                                                        tracker.weights_hash(), args.delays), args.overwrite)
     partial = out / f".{stem}.partial.jsonl"
+    set_interrupt_note(args, lambda: _kept(args, partial))
     try:
         with run_lock(partial):  # a second run with the same --out, task and tracker is refused
             results = run_task(tracker, spec.id, episodes=args.episodes, device=args.device, delays=args.delays,
@@ -69,3 +70,15 @@ def main(args: argparse.Namespace) -> int:
     print(format_summary(results))
     print(f"wrote {json_path} and {csv_path}")
     return 0
+
+
+def _kept(args: argparse.Namespace, partial: Path) -> str:
+    """The stop message: the finished episodes the journal keeps, and the command that resumes."""
+    from doabench.cli.common import command_line
+    from doabench.runner.journal import journal_count
+
+    n = journal_count(partial)
+    if not n:
+        return f"no episode had finished, nothing was kept; start it again with: {command_line(args)}"
+    return (f"{n} finished episode{'s' if n > 1 else ''} kept in {partial}; resume with the same command: "
+            f"{command_line(args)}")

@@ -50,6 +50,9 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     check_output_folder(args.out)
     use_threads(args)
+    from doabench.cli.common import set_interrupt_note
+
+    set_interrupt_note(args, lambda: _kept(args))
     env_options = corpus_kwargs(args)
     if args.device:
         env_options["device"] = args.device
@@ -67,3 +70,21 @@ def main(args: argparse.Namespace) -> int:
     for run in result.failed:
         print(f"failed: {run.tracker} on {run.task}: {run.error}")
     return 1 if result.failed else 0
+
+
+def _kept(args: argparse.Namespace) -> str:
+    """The stop message: finished runs' results files and interrupted runs' journals in --out."""
+    from pathlib import Path
+
+    from doabench.cli.common import command_line
+    from doabench.runner.journal import journal_count
+
+    out = Path(args.out)
+    results = [p for p in out.glob("*.json") if not p.name.startswith(".")] if out.is_dir() else []
+    journals = [p for p in out.glob(".*.partial.jsonl")] if out.is_dir() else []
+    episodes = sum(journal_count(p) for p in journals)
+    parts = [f"{len(results)} results file{'s' if len(results) != 1 else ''}"]
+    if journals:
+        parts.append(f"{episodes} finished episode{'s' if episodes != 1 else ''} of unfinished runs in their journals")
+    return (f"kept {' and '.join(parts)} in {out}; resume with the same command (finished runs are skipped): "
+            f"{command_line(args)}")

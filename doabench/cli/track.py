@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from doabench.cli.common import add_tracker_options, check_output_file, make_checked_tracker
+from doabench.cli.common import (add_tracker_options, check_output_file, command_line, make_checked_tracker,
+                                 set_interrupt_note)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -165,6 +166,9 @@ def main(args: argparse.Namespace) -> int:
             raise InputError(f"--truth {args.truth} does not exist")
     if args.vad == "truth" and not args.truth:
         raise InputError("--vad truth takes the voice activity from --truth's vad column; give --truth truth.csv")
+    written: list[str] = []
+    set_interrupt_note(args, lambda: f"{'wrote ' + ' and '.join(written) + ' before' if written else 'nothing was written'}"
+                                     f"; a recording is tracked whole, run it again with: {command_line(args)}")
     # An untrained learned model is refused unless weights=random.
     tracker = make_checked_tracker(args.tracker, parse_options(args.tracker_opt))
     from doabench.runner import recordings
@@ -205,6 +209,7 @@ def main(args: argparse.Namespace) -> int:
         print(score_line(args.truth, m, array.planar))
     with atomic_path(args.out) as tmp:
         table.to_csv(tmp, index=False, float_format="%.4f")
+    written.append(args.out)
     print(f"wrote {args.out}: {len(table)} frames from {args.recording} with {args.tracker}")
     if args.plot:
         plot_track(args.plot, out["times"], out["directions"], out["vad"], f"{Path(args.recording).name}: {args.tracker}",

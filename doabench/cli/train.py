@@ -124,12 +124,19 @@ def main(args: argparse.Namespace) -> int:
     from doabench.trackers.registry import make_tracker, parse_options
     from doabench.training.protocol import check_trainable
 
+    from doabench.cli.common import command_line, set_interrupt_note
+
     options = parse_options(args.tracker_opt)
     use_threads(args)
     if args.compact:
+        from doabench.results.files import exclusive_lock
         from doabench.training import checkpoint as ckpt
+        from doabench.training.trainer import LOCK_NAME
 
-        before, after = ckpt.compact_checkpoint(Path(args.out) / ckpt.LATEST)
+        if not (Path(args.out) / ckpt.LATEST).is_file():
+            before, after = ckpt.compact_checkpoint(Path(args.out) / ckpt.LATEST)  # its one-line error
+        with exclusive_lock(Path(args.out) / LOCK_NAME, f"the training run {args.out}"):  # not under a running train
+            before, after = ckpt.compact_checkpoint(Path(args.out) / ckpt.LATEST)
         print(f"compacted {Path(args.out) / ckpt.LATEST}: {before / 1e6:.1f} -> {after / 1e6:.1f} MB")
         return 0
     if args.export:
@@ -166,6 +173,8 @@ def main(args: argparse.Namespace) -> int:
         if recipe.t60 is None and "t60" in (d := training_defaults(make_tracker(args.tracker, **options))):
             recipe = recipe.replace(t60=tuple(d["t60"]))
         spec = get_task_spec(args.task)
+        set_interrupt_note(args, lambda: f"the trajectories cached so far are kept in {opts.cache_root}; continue "
+                                         f"with the same command: {command_line(args)}")
         log = lambda m: print(m, flush=True)  # noqa: E731
         ensure_cache(opts.cache_root, spec, recipe, "val", recipe.val_trajectories, args.librispeech, args.backend, log)
         if recipe.data == "cache":
@@ -176,7 +185,9 @@ def main(args: argparse.Namespace) -> int:
     if is_distributed_launch():  # torchrun --nproc-per-node N -m doabench train ... (docs/scale-out.md)
         history = run_distributed(opts, log=lambda m: print(m, flush=True))  # [] on ranks > 0
     else:
-        history = Trainer(opts, log=lambda m: print(m, flush=True)).run()
+        trainer = Trainer(opts, log=lambda m: print(m, flush=True))
+        set_interrupt_note(args, lambda: f"{trainer.stop_note()}; resume with: {command_line(args, ['--resume'])}")
+        history = trainer.run()
     if history:
         last = history[-1]
         print(f"trained {last['epoch']} epochs ({last['trajectories_seen']} trajectories, {last['compute_s']:.0f} s); "

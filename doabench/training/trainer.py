@@ -24,8 +24,8 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from doabench.errors import ConfigError, NotFoundError
-from doabench.results.files import atomic_path, write_json, write_text
+from doabench.errors import ConfigError, InputError, NotFoundError
+from doabench.results.files import atomic_path, exclusive_lock, write_json, write_text
 from doabench.trackers.hold import held_frame_index
 from doabench.training import checkpoint as ckpt
 from doabench.training.cache import TrajectoryCache
@@ -42,6 +42,8 @@ CSV_COLUMNS = ("epoch", "phase_snr", "batch_size", "lr", "train_loss", "val_loss
                "val_rmsae_nonsilent", "val_rmsae_held", "n_cache", "trajectories_seen", "epoch_s", "compute_s",
                "trajectories_per_s")
 PRECISIONS = ("auto", "bf16", "fp32")
+# The run folder's lock file (removed when the run ends; a stale one is taken over).
+LOCK_NAME = ".lock"
 
 
 @dataclass
@@ -242,6 +244,7 @@ class Trainer:
         if not self.options.resume:
             raise ConfigError(f"{self.out} already holds a training run; pass --resume to continue it "
                               "or choose another --out")
+        self._saved_stamp = _stamp(path)
         return ckpt.load_checkpoint(path)
 
     def _check_task_version(self) -> None:
@@ -423,6 +426,19 @@ class Trainer:
 
     # -- the loop ---------------------------------------------------------------------------------
     def run(self) -> list[dict[str, Any]]:
+        """Train; returns the epoch history. One process at a time writes a run folder: a second
+        ``train --out`` of the same folder gets one line naming the first one's pid."""
+        if self.options.dataset is None and self.recipe.data == "cache":
+            self._train_cache()  # a missing cache is an error before the run folder is written
+        if not self.is_writer:
+            return self._run()
+        with exclusive_lock(self.out / LOCK_NAME, f"the training run {self.out}"):
+            if _stamp(self.out / ckpt.LATEST) != getattr(self, "_saved_stamp", None):
+                raise InputError(f"another process wrote {self.out / ckpt.LATEST} while this one started; "
+                                 "run the command again to continue from it")
+            return self._run()
+
+    def _run(self) -> list[dict[str, Any]]:
         if self.options.dataset is None and self.recipe.data == "cache":
             self._train_cache()  # a missing cache is an error before the run folder is written
         self.out.mkdir(parents=True, exist_ok=True)
@@ -451,6 +467,7 @@ class Trainer:
             self.log(f"starting weights: val loss {start_metrics['val_loss']:.4f}, val RMSAE "
                      f"{start_metrics['val_rmsae_all']:.2f} deg (non-silent {start_metrics['val_rmsae_nonsilent']:.2f})")
         ran = 0
+        self.stop_state = {"kept": start, "epoch": None}
         for epoch in range(start, self.recipe.epochs):
             if self.options.max_epochs is not None and ran >= self.options.max_epochs:
                 break
@@ -468,10 +485,12 @@ class Trainer:
             if self.dist is not None:  # data-parallel hook: this rank's share of each global batch
                 loader = self.dist.loader(self, items, phase.batch_size)
             losses = []
+            self.stop_state.update(epoch=epoch + 1, since=t0, batches=0, of=_batches(loader))
             with EpochProgress(loader_length(loader), f"epoch {epoch + 1}/{self.recipe.epochs}",
                                self.options.progress) as bar:
                 for batch in loader:
                     losses.append(self.train_step(batch))
+                    self.stop_state["batches"] += 1
                     bar.step(float(np.mean(losses[-20:])))
             metrics = self.validate(val)
             epoch_s = time.perf_counter() - t0
@@ -499,11 +518,25 @@ class Trainer:
                 ckpt.save_checkpoint(self.out / ckpt.LATEST, state)
                 write_log(self.out / "log.csv", history)
                 plot_history(self.out / "loss.png", history, self.options.tracker)
+            self.stop_state.update(kept=epoch + 1, epoch=None)
             self.log(f"epoch {epoch + 1}: train loss {row['train_loss']:.4f}, val loss {metrics['val_loss']:.4f}, "
                      f"val RMSAE {metrics['val_rmsae_all']:.2f} deg (non-silent {metrics['val_rmsae_nonsilent']:.2f}, "
                      f"held {metrics['val_rmsae_held']:.2f}), {epoch_s:.0f} s")
             ran += 1
         return history
+
+    def stop_note(self) -> str:
+        """What an interrupted run kept and lost (the checkpoint is written at epoch ends only)."""
+        state = getattr(self, "stop_state", None) or {"kept": int((self.saved or {}).get("epoch", 0)), "epoch": None}
+        kept = (f"the checkpoint after epoch {state['kept']} is kept in {self.out}" if state["kept"]
+                else "no epoch had finished, so no checkpoint was written")
+        if state.get("epoch") is None:
+            return kept
+        minutes = (time.perf_counter() - state["since"]) / 60
+        where = (f"after {state['batches']} of {state['of']} batches" if state.get("of")
+                 else f"after {state['batches']} batches")
+        return (f"{kept}; epoch {state['epoch']} was stopped {where} ({minutes:.1f} min of work, which a resume "
+                "does again from the epoch's start)")
 
     def describe(self) -> dict[str, Any]:
         return {"tracker": self.options.tracker, "task": self.spec.id, "task_version": self.spec.version,
@@ -517,6 +550,22 @@ class Trainer:
                 "threads": torch.get_num_threads(), "torch": torch.__version__, "precision": self.precision,
                 "compile": bool(self.options.compile), "workers": self.workers, "device": str(self.device),
                 "hold_frames": self.hold_frames, "best_by": self.best_by}
+
+
+def _stamp(path: Path) -> tuple[int, int, int] | None:
+    """A checkpoint's identity on disk (inode, size, mtime): changed by any rewrite."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _batches(loader) -> int | None:
+    try:
+        return len(loader)
+    except TypeError:
+        return None
 
 
 def _available(folder: Path) -> list[int]:
