@@ -105,15 +105,19 @@ def build_distribution(args: argparse.Namespace):
     from doabench.acoustics.scenes import SceneDistribution
     from doabench.corpora.speech import LibriSpeechSource, get_speech_source
 
+    from doabench.corpora.paths import corpus_root
+
+    # --librispeech or $DOABENCH_LIBRISPEECH: one path, one rule for the subset whichever way it came.
+    root = corpus_root("librispeech", args.librispeech)
     if args.task:
-        dist, source, array = _task_setup(args.task, args.librispeech)
-        if args.librispeech and args.subset:
-            source = LibriSpeechSource(args.librispeech, args.subset)
+        dist, source, array = _task_setup(args.task, root)
+        if root and args.subset:
+            source = LibriSpeechSource(root, args.subset)
     else:
         subset = args.subset
-        if args.librispeech and not subset:
-            subset = default_subset(args.librispeech)
-        dist, source, array = SceneDistribution(), get_speech_source(args.librispeech, subset), "nao"
+        if root and not subset:
+            subset = default_subset(root)
+        dist, source, array = SceneDistribution(), get_speech_source(root, subset), "nao"
     changes = {}
     for name, value in (("t60", args.t60), ("snr", args.snr)):
         if value is not None:

@@ -30,11 +30,11 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import soundfile as sf
 
+from doabench.corpora.paths import LIBRISPEECH_ENV, corpus_root
 from doabench.corpora.vad import clean_with_vad
 from doabench.errors import ConfigError, InputError, NotFoundError
 from doabench.resampling import resample
 
-LIBRISPEECH_ENV = "DOABENCH_LIBRISPEECH"
 LIBRISPEECH_SUBSETS = (
     "dev-clean", "dev-other", "test-clean", "test-other",
     "train-clean-100", "train-clean-360", "train-other-500",
@@ -124,8 +124,7 @@ def resolve_librispeech(root: str | os.PathLike | None, subset: str | None) -> t
     Returns ``(subset folder, subset name)``; raises NotFoundError with download instructions.
     """
     wanted = subset or "test-clean"
-    if root is None or str(root) == "":
-        root = os.environ.get(LIBRISPEECH_ENV) or None
+    root = corpus_root("librispeech", root)
     if root is None:
         raise NotFoundError(f"no LibriSpeech path given and {LIBRISPEECH_ENV} is not set; {_how_to_get(wanted)}")
     base = Path(root).expanduser()
@@ -346,10 +345,12 @@ class EmbeddedSpeechSource:
 
 
 def get_speech_source(librispeech: str | os.PathLike | None = None, subset: str | None = None) -> SpeechSource:
-    """LibriSpeech when a path is given or ``$DOABENCH_LIBRISPEECH`` is set, else the embedded clips."""
-    if librispeech is None and not os.environ.get(LIBRISPEECH_ENV):
+    """LibriSpeech when a path is given or ``$DOABENCH_LIBRISPEECH`` is set
+    (:func:`doabench.corpora.paths.corpus_root`), else the embedded clips."""
+    root = corpus_root("librispeech", librispeech)
+    if root is None:
         return EmbeddedSpeechSource()
-    return LibriSpeechSource(librispeech, subset)
+    return LibriSpeechSource(root, subset)
 
 
 def speech_source_for(info: dict[str, Any], librispeech: str | os.PathLike | None = None) -> SpeechSource:

@@ -12,7 +12,6 @@ running random state.
 """
 from __future__ import annotations
 
-import os
 from importlib import metadata
 from typing import Any, Callable, Protocol
 
@@ -80,7 +79,9 @@ def make_speech_source(speech: dict[str, Any], librispeech: str | None = None):
     if corpus == "embedded":
         return speech_mod.EmbeddedSpeechSource()
     if corpus == "librispeech":
-        root = librispeech or os.environ.get("DOABENCH_LIBRISPEECH")
+        from doabench.corpora.paths import corpus_root
+
+        root = corpus_root("librispeech", librispeech)
         if not root:
             raise NotFoundError(
                 f"this task needs LibriSpeech {speech.get('subset', '')}: pass --librispeech PATH (Python: "

@@ -21,9 +21,9 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from doabench.corpora.paths import LOCATA_ENV, corpus_root
 from doabench.errors import ConfigError, NotFoundError
 
-LOCATA_ENV = "DOABENCH_LOCATA"
 SPLITS = ("dev", "eval")
 TASKS = (1, 2, 3, 4, 5, 6)
 ARRAYS = ("benchmark2", "dicit", "dummy", "eigenmike")
@@ -33,7 +33,7 @@ _RECORDING_RE = re.compile(r"^recording(\d+)$")
 def locata_root(root: str | os.PathLike | None = None) -> Path:
     """The corpus root: ``root`` if given, else ``$DOABENCH_LOCATA``; NotFoundError when neither
     names an existing folder."""
-    text = root if root not in (None, "") else os.environ.get(LOCATA_ENV)
+    text = corpus_root("locata", root)
     if not text:
         raise NotFoundError(
             "this task needs the LOCATA corpus (ODC-BY 1.0, DOI 10.5281/zenodo.3630471): pass "
