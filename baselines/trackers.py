@@ -90,6 +90,11 @@ class NeuralTracker(doabench.Tracker):
     uses_resolution: ClassVar[bool] = False
     default_frame_spec: ClassVar[doabench.FrameSpec] = doabench.FrameSpec()
 
+    @property
+    def resolution_in_id(self) -> bool:  # type: ignore[override]
+        """``cross3d`` and ``cross3d:16x32`` are one model: the id names the map resolution."""
+        return self.uses_resolution
+
     def __init__(self, spec: str | None = None, weights: str | None = None, device: str = "cpu",
                  seed: int = 0, resolution: str | None = None, array: str | None = None,
                  hold: str | int = "auto") -> None:

@@ -161,10 +161,42 @@ def check_tensors(state: Mapping[str, torch.Tensor], path: str | Path) -> None:
                              f"{worst:.3g} (more than {MAX_ABS_WEIGHT:g}); the file is damaged")
 
 
+#: the metadata key of a `doabench train` checkpoint (doabench.training.checkpoint, which this
+#: package may not import): such a file holds a whole run state, not a model's weights
+CHECKPOINT_KEY = "doabench_state"
+CHECKPOINT_NAME = "checkpoint.safetensors"
+
+
+def training_run_hint(path: str | Path, tracker: str | None = None) -> str:
+    """The one-line error for a training run folder or its checkpoint given as weights: export it."""
+    path = Path(path)
+    run = path if path.is_dir() else path.parent
+    name = f"{run.resolve().name or 'model'}.safetensors"
+    return (f"weights={path} is a `doabench train` {'run folder' if path.is_dir() else 'checkpoint'}, not a "
+            f"weights file; export it first with `doabench train --tracker {tracker or 'ID'} --out {run} --export "
+            f"{name}` and pass --tracker-opt weights={name}")
+
+
+def _checkpoint_tracker(path: Path) -> str | None:
+    """The tracker id a training checkpoint records (None when unreadable)."""
+    from safetensors import safe_open
+
+    try:
+        with safe_open(str(path), framework="pt", device="cpu") as f:
+            return json.loads((f.metadata() or {})[CHECKPOINT_KEY]).get("tracker")
+    except Exception:  # any damage: the hint goes without the id
+        return None
+
+
 def _open(path: str | Path):
     from safetensors import safe_open
 
     path = Path(path)
+    if path.is_dir():
+        checkpoint = path / CHECKPOINT_NAME
+        if checkpoint.is_file():
+            raise InputError(training_run_hint(path, _checkpoint_tracker(checkpoint)))
+        raise InputError(f"weights file {path} is a folder; give a .safetensors weights file")
     if not path.is_file():
         raise NotFoundError(f"weights file {path} does not exist")
     try:
@@ -176,9 +208,13 @@ def _open(path: str | Path):
 def read_metadata(path: str | Path) -> dict[str, Any]:
     """The doabench metadata of a weight file (InputError if it has none)."""
     with _open(path) as f:
-        raw = (f.metadata() or {}).get(METADATA_KEY)
+        header = f.metadata() or {}
+    raw = header.get(METADATA_KEY)
+    if raw is None and CHECKPOINT_KEY in header:
+        raise InputError(training_run_hint(path, _checkpoint_tracker(Path(path))))
     if raw is None:
-        raise InputError(f"weights file {path}: no doabench metadata (was it written by save_weights?)")
+        raise InputError(f"weights file {path}: no doabench metadata (was it written by save_weights, or exported "
+                         "with `doabench train --out RUN --export FILE`?)")
     try:
         meta = json.loads(raw)
     except json.JSONDecodeError:

@@ -141,7 +141,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     from doabench.envs.registry import get_task_spec
     from doabench.ray_support import check_engine, require_ray
     from doabench.results.writer import check_overwrite, configuration
-    from doabench.trackers.registry import make_tracker
+    from doabench.trackers.registry import canonical_tracker, make_tracker
 
     check_engine(engine)
     if engine == "ray":
@@ -150,15 +150,19 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     options = dict(tracker_options or {})
     task_ids = [get_task_spec(t).id for t in tasks]  # unknown ids: one line, before any work
     built = {t: make_tracker(t, **options) for t in trackers}
-    weights = {t: tracker.weights_hash() for t, tracker in built.items()}
-    versions = {t: tracker.version for t, tracker in built.items()}
+    # One model, one run: aliases (cross3d, cross3d:16x32) resolve to one canonical id and options.
+    canonical = {t: canonical_tracker(t, options, tracker) for t, tracker in built.items()}
+    opts = {cid: o for cid, o in canonical.values()}
+    weights = {canonical[t][0]: tracker.weights_hash() for t, tracker in built.items()}
+    versions = {canonical[t][0]: tracker.version for t, tracker in built.items()}
+    trackers = list(dict.fromkeys(cid for cid, _ in canonical.values()))
     del built
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs = [SweepRun(tracker, task) for task in task_ids for tracker in trackers]
     todo = []
     for run in runs:
-        path = finished_results(out, run.task, run.tracker, episodes, delays, options, weights[run.tracker],
+        path = finished_results(out, run.task, run.tracker, episodes, delays, opts[run.tracker], weights[run.tracker],
                                 versions[run.tracker])
         if path is not None:
             run.status, run.json_path = "skipped", path
@@ -166,21 +170,21 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
             continue
         try:  # refuse to replace another configuration's file now, not after the run
             spec = get_task_spec(run.task)
-            check_overwrite(out / f"{run_stem(run.task, run.tracker, options, delays)}.json",
-                            configuration(spec.id, spec.version, run.tracker, options, weights[run.tracker], delays),
-                            overwrite)
+            check_overwrite(out / f"{run_stem(run.task, run.tracker, opts[run.tracker], delays)}.json",
+                            configuration(spec.id, spec.version, run.tracker, opts[run.tracker], weights[run.tracker],
+                                          delays), overwrite)
         except DoabenchError as exc:
             run.status, run.error = "failed", str(exc)
             _log_run(run, log)
             continue
         todo.append(run)
-    args = (episodes, delays, options, keep_frames, env_options)
     if engine == "local":
         for run in todo:
             t0 = time.perf_counter()
             try:
-                _finish(run, execute_run(run.tracker, run.task, out, *args, progress=progress), out, options, delays,
-                        overwrite)
+                results = execute_run(run.tracker, run.task, out, episodes, delays, opts[run.tracker], keep_frames,
+                                      env_options, progress=progress)
+                _finish(run, results, out, opts[run.tracker], delays, overwrite)
             except OutputError:
                 raise  # a full disk or read-only folder fails every later run too: stop, journals kept
             except DoabenchError as exc:
@@ -188,7 +192,8 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
             run.seconds = time.perf_counter() - t0
             _log_run(run, log)
     elif todo:
-        _sweep_ray(todo, out, args, ray_address, workers, log, overwrite)
+        _sweep_ray(todo, out, (episodes, delays, keep_frames, env_options), opts, ray_address, workers, log,
+                   overwrite)
     result = SweepResult(out, runs)
     if any(r.status in ("done", "skipped") for r in runs):
         from doabench.results.leaderboard import build_leaderboards, default_references, write_leaderboards
@@ -208,22 +213,26 @@ def _log_run(run: SweepRun, log: Callable[[str], None]) -> None:
         log(f"{run.tracker} on {run.task}: failed: {run.error}")
 
 
-def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, address: str | None, workers: int | None,
-               log: Callable[[str], None], overwrite: bool = False) -> None:
+def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, opts: dict[str, dict[str, Any]], address: str | None,
+               workers: int | None, log: Callable[[str], None], overwrite: bool = False) -> None:
+    """``args``: ``(episodes, delays, keep_frames, env_options)`` of every run; ``opts``: each
+    tracker's (canonical) options."""
+    episodes, delays, keep_frames, env_options = args
     from doabench.ray_support import ray_session, unwrap
 
     with ray_session(address, workers or (None if address else min(len(todo), 2))) as ray:
         remote = ray.remote(num_cpus=1)(execute_run)
         # The out folder is passed as an absolute path: on a cluster it must be a shared folder
         # (the workers keep the runs' journals there); the driver writes the results files.
-        refs = {remote.remote(run.tracker, run.task, str(out.resolve()), *args): (run, time.perf_counter())
+        refs = {remote.remote(run.tracker, run.task, str(out.resolve()), episodes, delays, opts[run.tracker],
+                              keep_frames, env_options): (run, time.perf_counter())
                 for run in todo}
         try:
             while refs:
                 ready, _ = ray.wait(list(refs), num_returns=1)
                 run, t0 = refs.pop(ready[0])
                 try:
-                    _finish(run, ray.get(ready[0]), out, options=args[2], delays=args[1], overwrite=overwrite)
+                    _finish(run, ray.get(ready[0]), out, options=opts[run.tracker], delays=delays, overwrite=overwrite)
                 except Exception as exc:
                     exc = unwrap(exc)
                     if not isinstance(exc, DoabenchError) or isinstance(exc, OutputError):

@@ -89,9 +89,10 @@ def test_tables_ranked_with_cis_provenance_and_cells(results_dir: Path) -> None:
     assert "base seed 7" in page and "Test CPU ×2" in page and "2026-01-01T00:00:00+00:00" in page
     assert "`doabench run --tracker srp-max:8x16 --task sim-grid --librispeech LIBRISPEECH_ROOT`" in page
     assert "Regenerate with `doabench leaderboard`" in page
-    # limited runs are marked and reproducible with --episodes
+    # partial runs are listed apart, unranked, with their coverage, and reproducible with --episodes
     demo = files["sim-demo.md"]
-    assert "1/4 †" in demo and "--episodes 1" in demo
+    assert "No complete run of this task yet" in demo and "## Partial runs (not ranked)" in demo
+    assert "1/4 episodes (the first 1)" in demo and "--episodes 1" in demo
     cells = files["sim-grid-cells.csv"].splitlines()
     assert cells[0].startswith("tracker,t60,snr") and len(cells) == 5
 
@@ -102,8 +103,8 @@ def test_published_rows_are_marked_and_separate(results_dir: Path) -> None:
     published = page.split("## Published reference rows (not reproduced)")[1]
     assert "Cross3D (SRP-PHAT maps, 32x64) | 12.43 | 8.36 | 7.69 | 9.49 | published, not reproduced" in published
     ours = page.split("## Published")[0]
-    assert "Cross3D" not in ours and "`srp-max`" in ours
-    assert "### Per recording" in ours and "| `srp-max` | 20.00 | 21.00 | — | 20.50 | R1 |" in ours
+    assert "Cross3D" not in ours and "`srp-max:16x32`" in ours  # the alias srp-max shown under its canonical id
+    assert "### Per recording" in ours and "| `srp-max:16x32` | 20.00 | 21.00 | — | 20.50 | R1 |" in ours
     csv_lines = files["locata-3.csv"].splitlines()
     assert csv_lines[1].startswith("doabench run,1,locata-3")
     assert sum(line.startswith("published,") for line in csv_lines) == 9

@@ -13,7 +13,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "An interrupted run resumes from its .partial.jsonl file when run again.")
     add_tracker_options(p)
     p.add_argument("--task", required=True, help="task id (doabench list tasks)")
-    p.add_argument("--episodes", type=int, help="run only the first N episodes")
+    p.add_argument("--episodes", type=int,
+                   help="run only N episodes: on a grid task spread over its cells (the first episode of every "
+                        "cell in turn, then the second, ...), else the first N. A partial run is listed apart, "
+                        "unranked, on the leaderboards")
+    p.add_argument("--cells", metavar="IDS",
+                   help="grid tasks: run only these cells (comma-separated cell task ids, doabench list tasks); "
+                        "with --episodes, N episodes spread over them")
     p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
     p.add_argument("--out", default="results", help="folder for results files (default: results/)")
     p.add_argument("--overwrite", action="store_true",
@@ -27,18 +33,23 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from doabench.results.writer import check_overwrite, configuration, format_summary, results_stem, write_results
+    from doabench.results.writer import (alias_files, check_overwrite, configuration, format_summary, results_stem,
+                                         write_results)
     from doabench.runner import run_task
-    from doabench.trackers.registry import parse_options
+    from doabench.trackers.registry import canonical_tracker, parse_options
     from doabench.envs.registry import get_task_spec
 
     from doabench.cli.common import check_output_folder, make_checked_tracker, set_interrupt_note
     from doabench.runner import run_lock
+    from doabench.runner.selection import parse_cells
 
     check_output_folder(args.out)  # before the work, not after it
     use_threads(args)
     options = parse_options(args.tracker_opt)
     tracker = make_checked_tracker(args.tracker, options)  # before any file or folder is made
+    # One model, one name: aliases (cross3d = cross3d:16x32, default-valued options) resolve to
+    # the canonical id and options before the file is named.
+    tracker_id, options = canonical_tracker(args.tracker, options, tracker)
     spec = get_task_spec(args.task)
     if args.vad and spec.kind != "locata":
         from doabench.errors import ConfigError
@@ -46,19 +57,26 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.id!r} is {spec.kind} (its VAD is the scene's)")
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
-    stem = results_stem(spec.id, args.tracker, options, args.delays, tracker.weights_hash())
+    stem = results_stem(spec.id, tracker_id, options, args.delays, tracker.weights_hash())
     # Refused before the work: a file of another configuration under this name (never overwritten silently).
-    check_overwrite(out / f"{stem}.json", configuration(spec.id, spec.version, args.tracker, options,
+    check_overwrite(out / f"{stem}.json", configuration(spec.id, spec.version, tracker_id, options,
                                                        tracker.weights_hash(), args.delays), args.overwrite)
     partial = out / f".{stem}.partial.jsonl"
     set_interrupt_note(args, lambda: _kept(args, partial))
     try:
         with run_lock(partial):  # a second run with the same --out, task and tracker is refused
-            results = run_task(tracker, spec.id, episodes=args.episodes, device=args.device, delays=args.delays,
+            results = run_task(tracker, spec.id, episodes=args.episodes, cells=parse_cells(args.cells),
+                               device=args.device, delays=args.delays,
                                tracker_options=options, partial_path=partial, progress=not args.quiet,
                                keep_frames=not args.no_frames, lock=False, **corpus_kwargs(args))
-            results["tracker"]["id"] = args.tracker
+            results["tracker"]["id"] = tracker_id
+            if tracker_id != args.tracker:
+                results["tracker"]["given_id"] = args.tracker
             json_path, csv_path = write_results(results, out, overwrite=args.overwrite)
+            aliases = alias_files(results, out)
+            for old in aliases:  # the same configuration written under an alias of the id
+                old.unlink(missing_ok=True)
+                old.with_suffix(".csv").unlink(missing_ok=True)
             partial.unlink(missing_ok=True)
     except BaseException:
         for folder in created:  # folders this run made and left empty go again
@@ -69,6 +87,8 @@ def main(args: argparse.Namespace) -> int:
         raise
     print(format_summary(results))
     print(f"wrote {json_path} and {csv_path}")
+    if aliases:
+        print(f"replaced {', '.join(str(p) for p in aliases)} (the same configuration under an alias of {tracker_id})")
     return 0
 
 

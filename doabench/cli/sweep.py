@@ -18,7 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tasks", required=True, help="comma-separated task ids, e.g. sim-demo,sim-t60-0.3-snr-30")
     p.add_argument("--tracker-opt", action="append", default=[], metavar="KEY=VALUE",
                    help="option passed to every tracker's constructor (repeatable)")
-    p.add_argument("--episodes", type=int, help="run only the first N episodes of each task")
+    p.add_argument("--episodes", type=int,
+                   help="run only N episodes of each task (grid tasks: spread over the cells, as `doabench run "
+                        "--episodes` does); partial runs are listed apart, unranked, on the leaderboard")
     p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
     p.add_argument("--out", required=True, help="results folder of every run")
     p.add_argument("--leaderboard", metavar="DIR", help="leaderboard folder (default: OUT/leaderboard)")

@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from doabench.results.distribution import IN, training_distribution
-from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, display_path, load_references,
-                                      load_runs, recording_mean)
+from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, canonical_id, collect, coverage, display_path,
+                                      load_references, load_runs, recording_mean)
 
 PUBLISHED = "published"
 REPRODUCED = "doabench run"
@@ -70,11 +70,15 @@ def reproduce_command(results: dict[str, Any]) -> str:
     """The ``doabench run`` command line that re-creates a results file (corpus paths as placeholders)."""
     task = results["task"]
     tracker = results["tracker"]
-    parts = ["doabench run", f"--tracker {tracker.get('id') or tracker.get('name')}", f"--task {task['id']}"]
+    parts = ["doabench run", f"--tracker {canonical_id(results)}", f"--task {task['id']}"]
     for key, value in sorted((tracker.get("options") or {}).items()):
         parts.append(f"--tracker-opt {key}={value}")
-    if task.get("episodes_run") is not None and task.get("episodes_run") != task.get("episodes_total"):
-        parts.append(f"--episodes {task['episodes_run']}")
+    selection = task.get("selection") or {}
+    if selection.get("cells"):
+        parts.append(f"--cells {','.join(selection['cells'])}")
+    if task.get("episodes_run") is not None and task.get("episodes_run") != task.get("episodes_total") and (
+            selection.get("rule") != "cells"):
+        parts.append(f"--episodes {selection.get('episodes') or task['episodes_run']}")
     features = results.get("features") or {}
     if features.get("delays") not in (None, "nearest"):
         parts.append(f"--delays {features['delays']}")
@@ -112,7 +116,7 @@ def provenance_line(label: str, run: RunFile) -> str:
         + (f"weights sha256 `{weights[:16]}`" if weights else
            "UNTRAINED (random weights)" if _untrained(r) else "no weights"),
         f"task `{task['id']}` v{task.get('version', '?')}, base seed {task.get('base_seed')} "
-        f"(per-episode seeds in the file), {task.get('episodes_run')}/{task.get('episodes_total')} episodes",
+        f"(per-episode seeds in the file), {coverage(r)}" + _selection_text(task),
         commit_text,
         f"doabench {env.get('doabench', '?')}, Python {env.get('python', '?')}, torch {env.get('torch', '?')}, "
         f"numpy {env.get('numpy', '?')}",
@@ -190,8 +194,48 @@ def _input_text(results: dict[str, Any]) -> str:
 
 
 def _episodes_text(task: dict[str, Any]) -> str:
-    run, total = task.get("episodes_run"), task.get("episodes_total")
-    return f"{run}/{total}" + (" †" if run != total else "")
+    return f"{task.get('episodes_run')}/{task.get('episodes_total')}"
+
+
+def _selection_text(task: dict[str, Any]) -> str:
+    """How a partial run chose its episodes (empty for a complete run)."""
+    if task.get("episodes_run") == task.get("episodes_total"):
+        return ""
+    selection = task.get("selection") or {}
+    rule = selection.get("rule")
+    cells = selection.get("cells")
+    where = f"cells {', '.join(cells)}" if cells else "the cells"
+    if rule == "stratified":
+        return f" (`--episodes {selection.get('episodes')}` spread over {where})"
+    if rule == "cells":
+        return f" (every episode of {where})"
+    if rule == "indices":
+        return " (chosen episodes)"
+    return f" (the first {task.get('episodes_run')})"
+
+
+def has_lag(runs: Sequence[RunFile]) -> bool:
+    """Whether the boards show a lag column: some run's summary has the lag metric (``lag_s``)."""
+    return any("lag_s" in (run.results.get("summary") or {}) for run in runs)
+
+
+def _lag(summary: dict[str, Any]) -> str:
+    """The lag in seconds; ``-`` where the run has no defined lag (``null``), ``—`` without the metric."""
+    if "lag_s" not in summary:
+        return "—"
+    return "-" if summary["lag_s"] is None else f"{float(summary['lag_s']):.2f}"
+
+
+def _lag_notes(runs: Sequence[RunFile]) -> list[str]:
+    """What the lag column means, and why a ``-`` has no defined lag (the runs' own notes)."""
+    notes = sorted({str(s.get("lag_note")).removesuffix(": no defined lag")
+                    for s in (r.results.get("summary") or {} for r in runs)
+                    if "lag_s" in s and s.get("lag_s") is None and s.get("lag_note")})
+    text = ("**lag [s]**: the delay of the true direction that best fits the estimates (0 to 2 s; "
+            "docs/concepts.md)")
+    if notes:
+        text += "; **-**: no defined lag (" + "; ".join(notes) + ")"
+    return ["", text + "."]
 
 
 def _untrained(results: dict[str, Any]) -> bool:
@@ -203,12 +247,17 @@ def _untrained(results: dict[str, Any]) -> bool:
 RECORDING_COLUMNS = MAIN_COLUMNS[:6] + ("RMSAE all, mean of recordings", "RMSAE all pooled [95% CI]") + MAIN_COLUMNS[7:]
 
 
-def _main_row(rank: int, run: RunFile, label: str, by_recording: bool = False) -> list[str]:
+def _columns(by_recording: bool, with_lag: bool) -> tuple[str, ...]:
+    columns = RECORDING_COLUMNS if by_recording else MAIN_COLUMNS
+    return columns[:-1] + ("lag [s]",) + columns[-1:] if with_lag else columns
+
+
+def _main_row(rank: int, run: RunFile, label: str, by_recording: bool = False, with_lag: bool = False) -> list[str]:
     r = run.results
     s = r["summary"]
     pooled = s.get("pooled") or {}
     within = pooled.get("within_10")
-    return [
+    row = [
         str(rank), f"`{run.tracker_id}`" + (" **(untrained)**" if _untrained(r) else "") + _distribution_mark(r),
         "yes" if r.get("causal") else "no (offline)",
         f"{int(r['tracker'].get('parameters') or 0):,}", _input_text(r), _episodes_text(r["task"]),
@@ -218,6 +267,43 @@ def _main_row(rank: int, run: RunFile, label: str, by_recording: bool = False) -
         _num(pooled.get("mae")), _num(pooled.get("median")),
         "—" if within is None else f"{100 * float(within):.0f}%", _num(pooled.get("azimuth_mae")), label,
     ]
+    return row[:-1] + [_lag(s)] + row[-1:] if with_lag else row
+
+
+PARTIAL_COLUMNS = ("tracker", "covers", "RMSAE all frames [95% CI]", "RMSAE non-silent [95% CI]", "run")
+
+
+def partial_section(board: TaskBoard, labels: dict[str, str], with_lag: bool) -> list[str]:
+    """Partial runs (``--episodes N``, ``--cells``), apart from the ranking, with their coverage."""
+    if not board.partial:
+        return []
+    lines = ["", "## Partial runs (not ranked)", "",
+             "Runs of some of the task's episodes (`--episodes N`, `--cells`): their numbers hold for the episodes "
+             "they cover and are not ranked against complete runs. RMSAE in degrees pooled over those episodes, "
+             "with the 95% bootstrap interval over them.", ""]
+    header = PARTIAL_COLUMNS[:-1] + (("lag [s]",) if with_lag else ()) + PARTIAL_COLUMNS[-1:]
+    rows = []
+    for run in board.partial:
+        r = run.results
+        s = r["summary"]
+        rows.append([f"`{run.tracker_id}`" + (" **(untrained)**" if _untrained(r) else ""),
+                     coverage(r) + _selection_text(r["task"]),
+                     _with_ci(s.get("rmsae_all"), s.get("rmsae_all_ci95")),
+                     _with_ci(s.get("rmsae_nonsilent"), s.get("rmsae_nonsilent_ci95"))]
+                    + ([_lag(s)] if with_lag else []) + [labels[run.path]])
+    lines += _table(header, rows)
+    return lines + (_lag_notes(board.partial) if with_lag and not board.runs else [])
+
+
+def superseded_section(board: TaskBoard, labels: dict[str, str]) -> list[str]:
+    """Files not shown because another file of the same configuration is (one model, one row)."""
+    if not board.superseded:
+        return []
+    lines = ["", "## Superseded files", "",
+             "Same tracker (aliases resolved: `cross3d` is `cross3d:16x32`), options, weights and task version as "
+             "a row above; the most complete, then newest, file is shown.", ""]
+    return lines + [f"- `{old.path}` (`{old.results['tracker'].get('id')}`, {coverage(old.results)}): "
+                    f"see {labels[shown.path]}" for old, shown in board.superseded]
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
@@ -245,7 +331,7 @@ def _g(x: float) -> str:
 
 def grid_section(board: TaskBoard, labels: dict[str, str]) -> list[str]:
     """Per tracker, RMSAE per T60 × SNR cell (all frames and non-silent frames, with 95% CIs)."""
-    runs = [r for r in board.runs if r.results.get("cells")]
+    runs = [r for r in board.runs + board.partial if r.results.get("cells")]
     if not runs:
         return []
     t60s, snrs = _grid_axes(runs)
@@ -297,11 +383,13 @@ def reference_section(board: TaskBoard, recordings: list[str]) -> list[str]:
 def task_markdown(board: TaskBoard, command: str) -> str:
     """The Markdown page of one task."""
     labels = {run.path: f"R{i}" for i, run in enumerate(board.runs, start=1)}
+    labels.update({run.path: f"P{i}" for i, run in enumerate(board.partial, start=1)})
     recordings = _recordings(board)
+    with_lag = has_lag(board.runs + board.partial)
     lines = [f"# Leaderboard: `{board.task_id}`", "",
              "<!-- generated by `doabench leaderboard`; do not edit by hand -->", "",
              f"Regenerate with `{command}`.", ""]
-    versions = sorted({str(r.results["task"].get("version")) for r in board.runs})
+    versions = sorted({str(r.results["task"].get("version")) for r in board.runs + board.partial})
     if len(versions) > 1:
         lines += [f"**Warning**: results of several task versions ({', '.join(versions)}) are mixed here; "
                   "numbers from different versions are not comparable.", ""]
@@ -317,15 +405,14 @@ def task_markdown(board: TaskBoard, command: str) -> str:
             lines += [f"Ranked by RMSAE over all frames (degrees, pooled over every frame of every episode; "
                       "ties by tracker id). Brackets: 95% bootstrap interval over episodes (1000 resamples). "
                       "MAE, median, ≤10° and azimuth MAE are over non-silent frames. Definitions: docs/concepts.md.", ""]
-        rows = [_main_row(i, run, labels[run.path], by_recording) for i, run in enumerate(board.runs, start=1)]
-        lines += _table(RECORDING_COLUMNS if by_recording else MAIN_COLUMNS, rows)
+        rows = [_main_row(i, run, labels[run.path], by_recording, with_lag) for i, run in enumerate(board.runs, start=1)]
+        lines += _table(_columns(by_recording, with_lag), rows)
+        if with_lag:
+            lines += _lag_notes(board.runs + board.partial)
         lines += _distribution_notes(board)
         if any(_untrained(r.results) for r in board.runs):
             lines += ["", "**(untrained)**: a learned tracker run with randomly initialised weights "
                           "(`--tracker-opt weights=random`); a reference point, not a trained model."]
-        if any(r.results["task"].get("episodes_run") != r.results["task"].get("episodes_total") for r in board.runs):
-            lines += ["", "† Ran only the first N episodes of the task (`--episodes N`, for time); "
-                          "not directly comparable with full runs."]
         if recordings:
             lines += ["", "### Per recording (RMSAE all frames)", ""]
             header = ["tracker"] + [f"recording {r}" for r in recordings] + ["mean of recordings", "run"]
@@ -337,16 +424,20 @@ def task_markdown(board: TaskBoard, command: str) -> str:
                 mean = sum(present) / len(present) if present else None
                 rec_rows.append([f"`{run.tracker_id}`"] + [_num(v) for v in vals] + [_num(mean), labels[run.path]])
             lines += _table(header, rec_rows)
+    elif board.partial:
+        lines += ["No complete run of this task yet; partial runs below.", ""]
     else:
         lines += ["No doabench results for this task yet: run `doabench run --tracker ... --task "
                   f"{board.task_id} --out results/` and regenerate.", ""]
+    lines += partial_section(board, labels, with_lag)
     lines += grid_section(board, labels)
     lines += reference_section(board, recordings)
-    if board.runs:
+    if board.runs or board.partial:
         lines += ["", "## Runs", "",
                   "Where each row's numbers come from. Per-episode rows and per-frame estimates are in the "
                   "results file; its CSV twin has the per-episode metrics.", ""]
-        lines += [provenance_line(labels[run.path], run) for run in board.runs]
+        lines += [provenance_line(labels[run.path], run) for run in board.runs + board.partial]
+    lines += superseded_section(board, labels)
     return "\n".join(lines) + "\n"
 
 
@@ -354,10 +445,12 @@ CSV_COLUMNS = (
     "status", "rank", "task", "task_version", "tracker", "tracker_name", "tracker_version", "causal", "parameters",
     "features", "resolution", "episodes_run", "episodes_total", "rmsae_all", "rmsae_all_ci95_low",
     "rmsae_all_ci95_high", "rmsae_nonsilent", "rmsae_nonsilent_ci95_low", "rmsae_nonsilent_ci95_high", "mae",
-    "median", "p90", "within_5", "within_10", "within_20", "within_30", "azimuth_mae", "recordings",
+    "median", "p90", "within_5", "within_10", "within_20", "within_30", "azimuth_mae", "lag_s", "recordings",
     "results_file", "results_sha256", "git_commit", "git_dirty", "weights_hash", "base_seed", "cpu", "cpu_count",
-    "device", "torch", "doabench", "date", "command", "reference", "training_distribution",
+    "device", "torch", "doabench", "date", "command", "reference", "training_distribution", "cells_run",
+    "cells_total",
 )
+PARTIAL = "partial run (not ranked)"
 
 
 def _csv_text(rows: list[dict[str, Any]], columns: Sequence[str]) -> str:
@@ -371,7 +464,8 @@ def _csv_text(rows: list[dict[str, Any]], columns: Sequence[str]) -> str:
 def task_csv(board: TaskBoard) -> str:
     """One row per run (ranked) and per published method; per-recording values as ``rec=value;...``."""
     rows = []
-    for rank, run in enumerate(board.runs, start=1):
+    ranked = [(rank, run) for rank, run in enumerate(board.runs, start=1)] + [(None, run) for run in board.partial]
+    for rank, run in ranked:
         r = run.results
         s, env, task, tr = r["summary"], r["environment"], r["task"], r["tracker"]
         pooled = s.get("pooled") or {}
@@ -379,7 +473,8 @@ def task_csv(board: TaskBoard) -> str:
         ns_ci = s.get("rmsae_nonsilent_ci95") or [None, None]
         per = _per_recording(run)
         rows.append({
-            "status": REPRODUCED, "rank": rank, "task": task["id"], "task_version": task.get("version"),
+            "status": REPRODUCED if rank is not None else PARTIAL, "rank": rank if rank is not None else "",
+            "task": task["id"], "task_version": task.get("version"),
             "tracker": run.tracker_id, "tracker_name": tr.get("name"), "tracker_version": tr.get("version"),
             "causal": str(bool(r.get("causal"))).lower(), "parameters": tr.get("parameters"),
             "features": " ".join((r.get("features") or {}).get("kinds") or []),
@@ -390,8 +485,10 @@ def task_csv(board: TaskBoard) -> str:
             "rmsae_nonsilent_ci95_low": _csv_num(ns_ci[0]), "rmsae_nonsilent_ci95_high": _csv_num(ns_ci[1]),
             **{k: _csv_num(pooled.get(k)) for k in ("mae", "median", "p90", "within_5", "within_10", "within_20",
                                                      "within_30", "azimuth_mae")},
+            "lag_s": _csv_num(s.get("lag_s")),
             "recordings": ";".join(f"{k}={_csv_num(per[k])}" for k in sorted(per, key=_rec_key)),
             "results_file": run.path, "results_sha256": run.sha256,
+            "cells_run": task.get("cells_run", ""), "cells_total": task.get("cells_total", ""),
             "git_commit": (env.get("git") or {}).get("commit") or "",
             "git_dirty": str((env.get("git") or {}).get("dirty")).lower(),
             "weights_hash": tr.get("weights_hash") or ("untrained" if _untrained(r) else ""), "base_seed": task.get("base_seed"),
@@ -417,13 +514,14 @@ def _rec_key(s: str) -> tuple:
 
 
 CELL_COLUMNS = ("tracker", "t60", "snr", "n_episodes", "rmsae_all", "rmsae_all_ci95_low", "rmsae_all_ci95_high",
-                "rmsae_nonsilent", "rmsae_nonsilent_ci95_low", "rmsae_nonsilent_ci95_high", "results_file")
+                "rmsae_nonsilent", "rmsae_nonsilent_ci95_low", "rmsae_nonsilent_ci95_high", "lag_s", "results_file")
 
 
 def cells_csv(board: TaskBoard) -> str | None:
-    """Long-format per-cell CSV of a grid task (None when no run has cells)."""
+    """Long-format per-cell CSV of a grid task (None when no run has cells); partial runs' cells
+    too, ``n_episodes`` saying how many of the cell's episodes they hold."""
     rows = []
-    for run in sorted(board.runs, key=lambda r: (r.tracker_id, r.path)):
+    for run in sorted(board.runs + board.partial, key=lambda r: (r.tracker_id, r.path)):
         for (t, s), c in sorted(_cell_lookup(run).items()):
             a = c.get("rmsae_all_ci95") or [None, None]
             n = c.get("rmsae_nonsilent_ci95") or [None, None]
@@ -431,7 +529,7 @@ def cells_csv(board: TaskBoard) -> str | None:
                          "rmsae_all": _csv_num(c.get("rmsae_all")), "rmsae_all_ci95_low": _csv_num(a[0]),
                          "rmsae_all_ci95_high": _csv_num(a[1]), "rmsae_nonsilent": _csv_num(c.get("rmsae_nonsilent")),
                          "rmsae_nonsilent_ci95_low": _csv_num(n[0]), "rmsae_nonsilent_ci95_high": _csv_num(n[1]),
-                         "results_file": run.path})
+                         "lag_s": _csv_num(c.get("lag_s")), "results_file": run.path})
     return _csv_text(rows, CELL_COLUMNS) if rows else None
 
 
@@ -462,7 +560,8 @@ def summary_markdown(boards: dict[str, TaskBoard], runs: Sequence[RunFile], refe
     rows = []
     for task_id, board in boards.items():
         best = board.runs[0] if board.runs else None
-        rows.append([f"[`{task_id}`]({safe_name(task_id)}.md)", str(len(board.runs)),
+        rows.append([f"[`{task_id}`]({safe_name(task_id)}.md)",
+                     str(len(board.runs)) + (f" (+{len(board.partial)} partial)" if board.partial else ""),
                      f"`{best.tracker_id}`" if best else "—",
                      (_with_ci(best.results["summary"].get("rmsae_all"), best.results["summary"].get("rmsae_all_ci95"))
                       if recording_mean(best.results) is None else

@@ -1,6 +1,13 @@
 """Leaderboard inputs: results files and published reference rows, loaded, checked, grouped by
 task and ranked (the headline: mean of per-recording RMSAEs for LOCATA, else the pooled RMSAE).
-:mod:`doabench.results.leaderboard` renders them as Markdown and CSV."""
+:mod:`doabench.results.leaderboard` renders them as Markdown and CSV.
+
+Only complete runs (every episode of the task) are ranked; partial runs (``--episodes N``,
+``--cells``) are kept apart with their coverage. One model is one row: a tracker named by an alias
+(``cross3d`` for ``cross3d:16x32``, results files written before ids were canonical) is shown
+under its canonical id, and of several files of one configuration (task version, tracker,
+options, weights, delays) only the most complete, then newest, is shown; the others are listed
+as superseded."""
 from __future__ import annotations
 
 import csv
@@ -33,11 +40,16 @@ class RunFile:
         return str(self.results["task"]["id"])
 
     @property
+    def complete(self) -> bool:
+        """The run scored every episode of its task (only complete runs are ranked)."""
+        return is_complete(self.results)
+
+    @property
     def tracker_id(self) -> str:
-        """The tracker id, with its options when the run had any (two configurations of one tracker
-        are two rows that can be told apart): ``srp-kalman:32x64 (alpha=0.2)``."""
+        """The canonical tracker id (:func:`canonical_id`), with its options when the run had any (two
+        configurations of one tracker are two rows that can be told apart): ``srp-kalman:32x64 (alpha=0.2)``."""
         tracker = self.results["tracker"]
-        base = str(tracker.get("id") or tracker.get("name"))
+        base = canonical_id(self.results)
         options = tracker.get("options") or {}
         if not options:
             return base
@@ -59,11 +71,60 @@ class ReferenceRow:
 
 @dataclass
 class TaskBoard:
-    """What one task's table is built from."""
+    """What one task's table is built from: ``runs`` (complete, ranked), ``partial`` (listed apart,
+    unranked), ``superseded`` (``(file, the row's file)``: another file of the same configuration)."""
 
     task_id: str
     runs: list[RunFile] = field(default_factory=list)
     references: list[ReferenceRow] = field(default_factory=list)
+    partial: list[RunFile] = field(default_factory=list)
+    superseded: list[tuple[RunFile, RunFile]] = field(default_factory=list)
+
+
+def canonical_id(results: dict[str, Any]) -> str:
+    """The tracker id a results file is shown and ranked under. Files written since ids became
+    canonical (``doabench.trackers.registry.canonical_tracker``) carry it as ``tracker.id``; an
+    older file's bare id of a tracker whose spec is its map resolution gets the resolution it ran
+    at (``cross3d`` -> ``cross3d:16x32``)."""
+    tracker = results.get("tracker") or {}
+    text = str(tracker.get("id") or tracker.get("name"))
+    resolution = tracker.get("resolution")
+    in_id = tracker.get("resolution_in_id", resolution is not None)
+    if ":" not in text and in_id and resolution:
+        return f"{text}:{resolution}"
+    return text
+
+
+def is_complete(results: dict[str, Any]) -> bool:
+    """Every episode of the task was scored."""
+    task = results.get("task") or {}
+    return task.get("episodes_run") == task.get("episodes_total")
+
+
+def coverage(results: dict[str, Any]) -> str:
+    """``36/360 episodes, 18/18 cells`` (cells for grid tasks whose file records them)."""
+    task = results.get("task") or {}
+    text = f"{task.get('episodes_run')}/{task.get('episodes_total')} episodes"
+    if task.get("cells_total"):
+        text += f", {task.get('cells_run')}/{task['cells_total']} cells"
+    return text
+
+
+def configuration_key(run: RunFile) -> tuple:
+    """What makes two files one row: task version, canonical tracker id with options, weights, delays."""
+    r = run.results
+    return (r["task"].get("version"), run.tracker_id, r["tracker"].get("weights_hash"),
+            (r.get("features") or {}).get("delays") or "nearest")
+
+
+def _preference(run: RunFile) -> tuple:
+    """Which of one configuration's files is shown: complete first, then most episodes, newest, name."""
+    task, env = run.results["task"], run.results.get("environment") or {}
+    return (not run.complete, -int(task.get("episodes_run") or 0), _negated(str(env.get("date") or "")), run.path)
+
+
+def _negated(text: str) -> tuple:
+    return tuple(-ord(c) for c in text)
 
 
 # -- reading --------------------------------------------------------------------------------------
@@ -139,15 +200,25 @@ def load_references(path: str | Path) -> list[ReferenceRow]:
 
 
 def collect(runs: Iterable[RunFile], references: Iterable[ReferenceRow] = ()) -> dict[str, TaskBoard]:
-    """Group runs and reference rows by task id (sorted)."""
+    """Group runs and reference rows by task id (sorted); per task one file per configuration
+    (:func:`configuration_key`), complete runs ranked, partial ones apart."""
     boards: dict[str, TaskBoard] = {}
+    by_config: dict[tuple, list[RunFile]] = {}
     for run in runs:
-        boards.setdefault(run.task_id, TaskBoard(run.task_id)).runs.append(run)
+        boards.setdefault(run.task_id, TaskBoard(run.task_id))
+        by_config.setdefault((run.task_id, configuration_key(run)), []).append(run)
+    for (task_id, _), group in by_config.items():
+        shown, *others = sorted(group, key=_preference)
+        board = boards[task_id]
+        (board.runs if shown.complete else board.partial).append(shown)
+        board.superseded += [(other, shown) for other in others]
     for ref in references:
         if ref.task_id != "all":
             boards.setdefault(ref.task_id, TaskBoard(ref.task_id)).references.append(ref)
     for board in boards.values():
         board.runs.sort(key=_run_sort_key)
+        board.partial.sort(key=lambda r: (-int(r.results["task"].get("episodes_run") or 0),) + _run_sort_key(r))
+        board.superseded.sort(key=lambda pair: pair[0].path)
     return dict(sorted(boards.items()))
 
 

@@ -102,6 +102,32 @@ def write_results(results: dict[str, Any], out_dir: str | Path, overwrite: bool 
     return json_path, csv_path
 
 
+def alias_files(results: Mapping[str, Any], out_dir: str | Path) -> list[Path]:
+    """Results JSON files in ``out_dir`` other than :func:`results_path` that hold the same
+    configuration under an alias of its tracker id (``sim-demo__srp-max.json`` written before ids
+    were canonical, now ``sim-demo__srp-max_16x32.json``): one model, one file. Only files whose
+    name starts with the task and the tracker's registered name are read."""
+    from doabench.results.ranking import canonical_id
+
+    target = results_path(results, out_dir)
+    tracker = results.get("tracker") or {}
+    safe = lambda s: re.sub(r"[^A-Za-z0-9.+-]+", "_", str(s)).strip("_")  # noqa: E731
+    prefix = f"{safe(results['task']['id'])}__{safe(tracker.get('name') or tracker.get('id'))}"
+    want = {**results_configuration(results), "tracker": canonical_id(dict(results))}
+    found = []
+    for path in sorted(Path(out_dir).glob(f"{prefix}*.json")):
+        if path.name == target.name:
+            continue
+        try:
+            old = json.loads(path.read_text())
+            config = {**results_configuration(old), "tracker": canonical_id(old)}
+        except (OSError, ValueError, AttributeError, TypeError, KeyError):
+            continue
+        if config == want:
+            found.append(path)
+    return found
+
+
 def format_summary(results: dict[str, Any]) -> str:
     """The table ``doabench run`` prints."""
     s = results["summary"]

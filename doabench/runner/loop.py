@@ -26,9 +26,10 @@ from doabench.results.files import to_json
 from doabench.results.provenance import environment
 from doabench.runner.journal import append_record, config_hash, load_journal, run_lock
 from doabench.runner.episode_cache import cache_episodes
+from doabench.runner.selection import select_episodes
 from doabench.runner.summary import build_results, episode_row, score
 from doabench.trackers.base import Tracker
-from doabench.trackers.registry import make_tracker
+from doabench.trackers.registry import canonical_tracker, make_tracker
 
 
 def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
@@ -157,10 +158,13 @@ def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
 def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,
              device: str | None = None, delays: str = "nearest", tracker_options: dict | None = None,
              partial_path: str | Path | None = None, progress: bool | Callable = True,
-             keep_frames: bool = True, lock: bool = True, **env_options: Any) -> dict[str, Any]:
+             keep_frames: bool = True, lock: bool = True, cells: Sequence[str] | None = None,
+             **env_options: Any) -> dict[str, Any]:
     """Run ``tracker`` on ``task`` and return the results dictionary (see docs/results-format).
 
-    ``episodes``: a count (the first N) or explicit indices; default all of the task's episodes.
+    ``episodes``: a count or explicit indices; default all of the task's episodes. A count on a
+    grid task is spread over its cells (:mod:`doabench.runner.selection`), else the first N.
+    ``cells``: on a grid task, only these cells (cell task ids).
     ``partial_path``: a JSON-lines file of finished episodes for resuming; removed by the caller
     once the final results are written. It is locked for the run (``lock=False``: the caller holds
     :func:`run_lock` already). ``wall_time_s`` adds up every invocation that contributed episodes.
@@ -168,27 +172,23 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     if partial_path and lock:
         with run_lock(partial_path):
             return run_task(tracker, task, episodes, device, delays, tracker_options, partial_path, progress,
-                            keep_frames, lock=False, **env_options)
+                            keep_frames, lock=False, cells=cells, **env_options)
     if isinstance(tracker, str):
         tracker_text = tracker
         tracker = make_tracker(tracker, **(tracker_options or {}))
     else:
         tracker_text = tracker.name
     check_trained(tracker, keyword=True)
+    try:  # aliases name one model (doabench.trackers.registry.canonical_tracker)
+        tracker_text, tracker_options = canonical_tracker(tracker_text, tracker_options, tracker)
+    except DoabenchError:  # an instance of an unregistered class keeps its own name
+        pass
     spec = get_task_spec(task)
     provenance = environment(device)  # taken before the work: the code that runs is the code recorded
     wall_start = time.perf_counter()
     env = make_env_for(tracker, task, device=device, delays=delays, **env_options)
     cache_episodes(env)  # DOABENCH_EPISODE_CACHE: several trackers, one simulation per episode
-    n_total = env.n_episodes
-    if episodes is None:
-        indices = list(range(n_total))
-    elif isinstance(episodes, int):
-        if episodes < 1:
-            raise ConfigError(f"--episodes must be at least 1, got {episodes}")
-        indices = list(range(min(episodes, n_total)))
-    else:
-        indices = [int(i) for i in episodes]
+    indices, selection = select_episodes(spec, env.n_episodes, episodes, cells)
     config = {"task": spec.id, "task_version": spec.version, "tracker": tracker_text,
               "options": tracker_options or {}, "delays": delays, "indices": indices,
               "weights": tracker.weights_hash(), "env": {k: str(v) for k, v in env_options.items()}}
@@ -202,7 +202,8 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     # This invocation's wall time plus that of the episodes earlier invocations journalled.
     earlier = sum(float(r.get("wall_s", 0.0)) for r in records if not r.pop("_new", False))
     wall_s = earlier + (time.perf_counter() - wall_start)
-    return build_results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays)
+    return build_results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays,
+                         selection)
 
 
 def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep_frames, wall_start) -> list[dict]:

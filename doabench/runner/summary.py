@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from doabench.envs.registry import get_task_spec
+from doabench.runner.selection import cells_covered
 from doabench.metrics import (ScoredFrames, aggregate, bootstrap_ci, lag_from_curves, pooled_from_rows,
                               pooled_speed_bands, score_episode, score_frames)
 from doabench.trackers.base import Tracker
@@ -53,8 +54,9 @@ def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
 
 
 def build_results(spec, tracker: Tracker, tracker_text: str, tracker_options, env, records: list[dict],
-                  wall_s: float, provenance: dict[str, Any], delays) -> dict[str, Any]:
-    """The results dictionary from the episode records of a run (``env``: its :class:`DoaEnv`)."""
+                  wall_s: float, provenance: dict[str, Any], delays, selection: dict | None = None) -> dict[str, Any]:
+    """The results dictionary from the episode records of a run (``env``: its :class:`DoaEnv`;
+    ``selection``: how its episodes were chosen, :func:`doabench.runner.selection.select_episodes`)."""
     rows = [r["row"] for r in records]
     per_frame = [(np.asarray(r["errors"], float), np.asarray(r["az_errors"], float), np.asarray(r["vad"], bool))
                  for r in records]
@@ -91,7 +93,9 @@ def build_results(spec, tracker: Tracker, tracker_text: str, tracker_options, en
         "schema": RESULTS_SCHEMA,
         "task": {"id": spec.id, "version": spec.version, "kind": spec.kind, "gym_id": spec.gym_id,
                  "base_seed": spec.base_seed, "episodes_run": len(rows), "episodes_total": env.n_episodes,
-                 "source": source},
+                 "complete": len(rows) == env.n_episodes,
+                 "selection": selection or {"rule": "all", "episodes": None, "cells": None},
+                 **(cells_covered(spec, rows) or {}), "source": source},
         "tracker": {"id": tracker_text, **tracker.describe(), "options": tracker_options or {},
                     **({"untrained": True} if getattr(tracker, "trained", True) is False else {})},
         "causal": bool(tracker.causal),

@@ -67,6 +67,10 @@ class Tracker:
     causal: ClassVar[bool] = True
     #: observation keys the tracker reads (``srp``, ``srp_max``, ``gcc``, ``spectrogram``)
     features: ClassVar[Sequence[str]] = ("srp",)
+    #: the spec after the colon (``name:16x32``) is the SRP map resolution, so the canonical id
+    #: names the resolution the tracker runs at (``name`` alone is ``name:16x32``):
+    #: :func:`doabench.trackers.registry.canonical_tracker`
+    resolution_in_id: ClassVar[bool] = False
 
     def __init__(self, spec: str | None = None, **options: Any) -> None:
         self.spec = spec
@@ -105,6 +109,7 @@ class Tracker:
             "causal": self.causal,
             "features": list(self.features),
             "resolution": None if self.resolution is None else "%dx%d" % self.resolution,
+            "resolution_in_id": bool(self.resolution_in_id),
             "parameters": self.parameter_count(),
             "receptive_field_frames": self.receptive_field_frames,
             "frame": self.frame_spec.to_dict(),

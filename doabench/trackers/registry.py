@@ -15,7 +15,7 @@ import difflib
 import importlib
 import importlib.util
 from importlib import metadata
-from typing import Any, Callable, TypeVar
+from typing import Any, Callable, Mapping, TypeVar
 
 from doabench.errors import ConfigError, DoabenchError, NotFoundError, TrackerError
 from doabench.trackers.base import Tracker
@@ -157,6 +157,59 @@ def _parse_value(value: str) -> Any:
         except ValueError:
             pass
     return value
+
+
+def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
+                      tracker: Tracker | None = None) -> tuple[str, dict[str, Any]]:
+    """The one id and options of a tracker configuration, so that aliases name one model: one
+    results file name, one leaderboard row.
+
+    * A tracker whose spec is its SRP map resolution (``resolution_in_id``) is named with the
+      resolution it runs at: ``cross3d`` -> ``cross3d:16x32``, ``srp-max`` -> ``srp-max:16x32``,
+      ``srp-max --tracker-opt resolution=8x16`` -> ``srp-max:8x16``.
+    * Options equal to the constructor's defaults are dropped (``hold=auto``, ``seed=0``).
+    * ``weights=FILE`` is dropped when the file is the weights the tracker loads by default (the
+      same SHA-256): the shipped model named by its path is the shipped model.
+
+    ``tracker``: the instance built from ``text`` and ``options`` (built here when None)."""
+    import inspect
+
+    options = dict(options or {})
+    cls, spec, name = resolve_tracker(text)
+    if _REGISTRY.get(name) is not cls:  # a class loaded by its path keeps the path: the id must load it again
+        head, _, rest = text.partition(":")
+        name = f"{head}:{rest.partition(':')[0]}"
+    if tracker is None:
+        tracker = make_tracker(text, **options)
+    resolution = tracker.resolution
+    if getattr(tracker, "resolution_in_id", False) and resolution is not None:
+        canonical = f"{name}:{resolution[0]}x{resolution[1]}"
+        options.pop("resolution", None)
+    else:
+        canonical = f"{name}:{spec}" if spec else name
+    try:
+        params = inspect.signature(cls).parameters
+    except (TypeError, ValueError):
+        params = {}
+    for key in list(options):
+        p = params.get(key)
+        if p is not None and p.default is not inspect.Parameter.empty and key != "weights" and (
+                options[key] == p.default or str(options[key]) == str(p.default)):
+            del options[key]
+    weights = options.get("weights")
+    if weights is not None and str(weights).lower() not in ("random", "none", "false", "") and tracker.weights_hash():
+        rest = {k: v for k, v in options.items() if k != "weights"}
+        import warnings
+
+        try:
+            with warnings.catch_warnings():  # a model without default weights warns; here that is the answer
+                warnings.simplefilter("ignore")
+                default = make_tracker(canonical, **rest).weights_hash()
+        except DoabenchError:
+            default = None
+        if default == tracker.weights_hash():
+            del options["weights"]
+    return canonical, options
 
 
 def make_tracker(text: str, **options: Any) -> Tracker:

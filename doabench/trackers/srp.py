@@ -18,6 +18,7 @@ _INITIAL_DIRECTION = np.array([1.0, 0.0, 0.0])  # before the first active frame:
 class _SrpGridTracker(Tracker):
     features = ("srp",)
     causal = True
+    resolution_in_id = True
 
     def __init__(self, spec: str | None = None, resolution: str | None = None, **options: Any) -> None:
         super().__init__(spec, **options)
