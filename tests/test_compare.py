@@ -112,6 +112,7 @@ def test_bad_options_are_one_line_errors(tmp_path, capsys):
     for argv, words in ((["compare", str(a)], "needs two or more results files"),
                         (["compare", str(a), str(a), "--hold", "x"], "--hold takes whole numbers"),
                         (["compare", str(a), str(tmp_path / "none.json")], "does not exist"),
+                        (["compare", str(a), str(a)], "nothing to compare"),
                         (["compare", str(a), str(a), "--csv", str(a)], "is also an input"),
                         (["compare", str(a), str(_write(tmp_path, "b.json", _results("b", BASE))), "--silence"],
                          "need per-frame estimates")):
@@ -157,9 +158,10 @@ def test_silence_breakdown_and_hold_the_truth(tmp_path, capsys):
     # held after one silent frame, frame 2 repeats frame 1 (UP): error 90 against the truth EAST
     assert rows["rmsae_all_hold_1"].a == pytest.approx(float(np.sqrt((90 ** 2 * 2) / 4)))
     # one file with --silence: the breakdown only
-    assert main(["compare", str(stay), "--silence"]) == 0
+    assert main(["compare", str(stay), "--silence", "--hold", "1"]) == 0
     out = capsys.readouterr().out
     assert "## Where the error of `stay` is" in out and "against" not in out
+    assert "Held after 1 silent frames: RMSAE all frames 63.64 deg." in out
 
 
 def test_shipped_results_pool_as_the_leaderboards_do(capsys):

@@ -66,7 +66,10 @@ def main(args: argparse.Namespace) -> int:
         for out in cmp_output_paths(args.plot):
             check_output_file(out, paths, "--plot")
     runs = [cmp.load_run(p) for p in paths]
+    # the first file again (a glob that matches it too) is not compared with itself
     first, others = runs[0], [r for r in runs[1:] if r.path.resolve() != runs[0].path.resolve()]
+    if not others and not args.silence:
+        raise InputError(f"nothing to compare {first.path} with: give another results file of the same task")
     cmp._distinct_labels([first, *others])
     comparisons = [cmp.compare(first, other, args.silence, holds, args.resamples, args.seed) for other in others]
     breakdowns = []
@@ -79,7 +82,8 @@ def main(args: argparse.Namespace) -> int:
                 raise InputError(f"--silence needs per-frame estimates, which {first.path} lacks (written with "
                                  "--no-frames); run it again without --no-frames")
             pairs = [(first, [frames[k] for k in sorted(frames)])]
-        breakdowns = [(run, cmp.silence_breakdown(frames), cmp.hold_the_truth(frames)) for run, frames in pairs]
+        breakdowns = [(run, cmp.silence_breakdown(frames), cmp.hold_the_truth(frames),
+                       {h: cmp.held_rmsae(frames, h) for h in holds}) for run, frames in pairs]
     cell_metrics = [m.strip() for m in args.cell_metrics.split(",") if m.strip()]
     sys.stdout.write(cmp.markdown(comparisons, cell_metrics, breakdowns, args.resamples))
     if args.csv:

@@ -516,6 +516,14 @@ def silence_breakdown(frames: Sequence[dict[str, Any]]) -> list[tuple[str, int, 
     return out
 
 
+def held_rmsae(frames: Sequence[dict[str, Any]], hold: int) -> float:
+    """RMSAE over all frames of the estimates held after ``hold`` silent frames (the learned
+    trackers' rule, ``doabench.hold_in_silences``)."""
+    errors = [episode_frames(f, hold)[0] for f in frames]
+    e = np.concatenate(errors) if errors else np.zeros(0)
+    return float(np.sqrt(np.mean(np.square(e)))) if e.size else float("nan")
+
+
 def hold_the_truth(frames: Sequence[dict[str, Any]]) -> float:
     """RMSAE over all frames of an oracle that knows the true direction of every voice-active
     frame and holds the last one through silent frames (90° before the first voice-active frame),
@@ -571,9 +579,11 @@ def cell_summary(c: Comparison, metric: str = "rmsae_all") -> str:
 
 
 def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DEFAULT_CELL_METRICS,
-             breakdowns: Sequence[tuple[Run, list, float]] = (), n_resamples: int = N_RESAMPLES) -> str:
+             breakdowns: Sequence[tuple[Run, list, float, dict[int, float]]] = (),
+             n_resamples: int = N_RESAMPLES) -> str:
     """The report: per comparison a pooled table, a per-cell table (grid tasks), the notes; then
-    the silence breakdown of each run (``breakdowns``: run, :func:`silence_breakdown`, oracle)."""
+    the silence breakdown of each run (``breakdowns``: run, :func:`silence_breakdown`, the
+    hold-the-truth oracle, :func:`held_rmsae` per hold)."""
     lines = ["# doabench compare", ""]
     if comparisons:
         lines += [f"Paired over the episodes both runs ran (same task version and seeds). Difference = first run − "
@@ -620,7 +630,7 @@ def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DE
         for note in c.notes:
             lines += ["", f"Note: {note}."]
         lines.append("")
-    for run, table, oracle in breakdowns:
+    for run, table, oracle, held in breakdowns:
         lines += [f"## Where the error of `{run.label}` is: frames since the last voice-active frame", "",
                   f"`{run.path}`, {run.task.get('id')} v{run.task.get('version')}"
                   f"{'' if not comparisons else ', over the episodes compared above'}.", ""]
@@ -628,6 +638,8 @@ def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DE
                         [[label, f"{n:,}", _fmt(rms, "deg"), _fmt(share, "")] for label, n, rms, share in table])
         lines += ["", f"Hold-the-truth oracle (the true direction of the last voice-active frame, 90° before the first): "
                       f"RMSAE all frames {_fmt(oracle, 'deg')} deg.", ""]
+        lines += [f"Held after {h} silent frames: RMSAE all frames {_fmt(v, 'deg')} deg." for h, v in held.items()]
+        lines += [""] if held else []
     return "\n".join(lines).rstrip() + "\n"
 
 
