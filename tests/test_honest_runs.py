@@ -1,14 +1,17 @@
 """Partial runs are stratified and kept apart from the ranking, one model is one row (aliases resolve
-to a canonical id), and a training run given as weights says to export it."""
+to a canonical id), a training run given as weights says to export it, and the default outputs of
+run, sweep and leaderboard lie under the git-ignored runs/."""
 from __future__ import annotations
 
 import json
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
 
 from conftest import ROOT, TINY_SCENE
-from doabench.cli.main import main
+from doabench.cli.main import build_parser, main
 from doabench.envs.registry import get_task_spec
 from doabench.errors import ConfigError
 from doabench.results.leaderboard import build_leaderboards
@@ -192,3 +195,22 @@ def test_a_training_run_given_as_weights_says_to_export_it(tmp_path, capsys):
     assert main(["run", "--tracker", "cross3d", "--tracker-opt", f"weights={empty}", "--task", "sim-demo",
                  "--out", str(tmp_path / "out"), "--quiet"]) == 2
     assert "is a folder" in capsys.readouterr().err
+
+
+# -- defaults that never touch the repository -----------------------------------------------------------------
+def test_run_sweep_and_leaderboard_default_to_the_ignored_runs_folder():
+    parser = build_parser()
+    defaults = {
+        "run": parser.parse_args(["run", "--tracker", "srp-max", "--task", "sim-demo"]).out,
+        "sweep": parser.parse_args(["sweep", "--trackers", "srp-max", "--tasks", "sim-demo"]).out,
+        "leaderboard": parser.parse_args(["leaderboard"]).out,
+        "leaderboard --results": parser.parse_args(["leaderboard"]).results,
+    }
+    assert defaults["leaderboard --results"] == defaults["run"]  # the tables of what run wrote
+    for command, folder in defaults.items():
+        assert Path(folder).parts[0] == "runs", (command, folder)
+    if shutil.which("git") and (ROOT / ".git").exists():
+        for folder in defaults.values():
+            probe = f"{folder}/x.json"
+            ignored = subprocess.run(["git", "check-ignore", probe], cwd=ROOT, capture_output=True, text=True)
+            assert ignored.stdout.strip() == probe

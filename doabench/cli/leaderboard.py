@@ -10,8 +10,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Write one Markdown table and one CSV per task (grid tasks also get per-cell "
                                    "tables and a cells CSV) plus summary.md, from the results JSON files. "
                                    "Output is deterministic: the same inputs give byte-identical files.")
-    p.add_argument("--results", default="results", help="folder of results JSON files (default: results/)")
-    p.add_argument("--out", default="leaderboards", help="output folder (default: leaderboards/)")
+    # Defaults under the git-ignored runs/, where `doabench run` writes by default: building a
+    # leaderboard never rewrites the committed leaderboards/ unless asked to (make update-demo-results).
+    p.add_argument("--results", default="runs/results",
+                   help="folder of results JSON files (default: runs/results/, where doabench run writes; "
+                        "the committed ones: --results results)")
+    p.add_argument("--out", default="runs/leaderboards",
+                   help="output folder (default: runs/leaderboards/, git-ignored; the committed tables: "
+                        "--out leaderboards)")
     p.add_argument("--reference", action="append", metavar="CSV",
                    help="CSV of published reference rows (repeatable; default: OUT/locata-paper-table2.csv if present)")
     p.add_argument("--check", action="store_true",

@@ -6,6 +6,9 @@ from pathlib import Path
 
 from doabench.cli.common import add_corpus_options, add_threads_option, add_tracker_options, corpus_kwargs, use_threads
 
+#: where results go without --out: under the git-ignored runs/, never the committed results/
+DEFAULT_OUT = "runs/results"
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run a tracker on a task and score it",
@@ -21,7 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="grid tasks: run only these cells (comma-separated cell task ids, doabench list tasks); "
                         "with --episodes, N episodes spread over them")
     p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
-    p.add_argument("--out", default="results", help="folder for results files (default: results/)")
+    p.add_argument("--out", default=DEFAULT_OUT,
+                   help=f"folder for results files (default: {DEFAULT_OUT}/, git-ignored; the committed results/ "
+                        "change only through `make update-demo-results` or an explicit --out results)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a results file of the same name that holds a different configuration "
                         "(other task version, weights or options); a rerun of the same configuration always replaces")

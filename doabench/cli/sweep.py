@@ -22,7 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="run only N episodes of each task (grid tasks: spread over the cells, as `doabench run "
                         "--episodes` does); partial runs are listed apart, unranked, on the leaderboard")
     p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
-    p.add_argument("--out", required=True, help="results folder of every run")
+    p.add_argument("--out", default="runs/sweep",
+                   help="results folder of every run (default: runs/sweep/, git-ignored)")
     p.add_argument("--leaderboard", metavar="DIR", help="leaderboard folder (default: OUT/leaderboard)")
     p.add_argument("--no-frames", action="store_true", help="do not store per-frame estimates in the JSON")
     p.add_argument("--engine", choices=["local", "ray"], default="local",
