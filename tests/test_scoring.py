@@ -128,3 +128,30 @@ def test_compare_scores_results_frames_as_run_does(tmp_path, capsys):
     assert rows["before the first voice"][0].strip() == "0"
     after = rows["after the first voice (all but the row above)"]
     assert int(after[0]) == 3 and float(after[1]) == pytest.approx(m["rmsae_all"], abs=0.005)
+
+
+def test_the_environment_reward_folds_a_planar_array_as_the_scores_do():
+    """Gymnasium users scoring by the reward get what `run` scores: for a planar array the mirror
+    image of the truth costs nothing."""
+    from dataclasses import replace
+
+    from conftest import QUICK_SCENE
+    from doabench.envs.env import DoaEnv
+
+    env = DoaEnv("sim-demo", features=("srp",), resolution=(4, 8), scene_overrides=QUICK_SCENE)
+    env.reset(options={"episode": 0})
+    truth = env._truth["directions"]  # read here only to build the mirrored action
+    mirror = truth[0] * np.array([1.0, 1.0, -1.0])
+    if abs(truth[0][2]) < 1e-3:
+        pytest.skip("the truth lies in the array plane: its mirror image is itself")
+    _, reward, *_ = env.step(mirror)
+    assert reward < -1e-3  # the NAO head is not planar: the mirror image is an error
+    env.reset(options={"episode": 0})
+    env.array = replace(env.array, planar=True)  # the same geometry, scored as a planar array's
+    _, reward, *_ = env.step(mirror)
+    assert reward == pytest.approx(0.0, abs=1e-9)
+    est = np.tile(mirror, (len(truth), 1))
+    env.reset(options={"episode": 0})
+    errors = env.score_offline(est)
+    expected = score_frames(est, truth, np.ones(len(truth), bool), planar=True).errors
+    assert np.allclose(np.degrees(errors), expected, atol=1e-9)

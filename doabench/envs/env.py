@@ -37,7 +37,7 @@ from doabench.errors import ConfigError, InputError
 from doabench.features.kinds import OBSERVATION_KINDS, check_kinds
 from doabench.features.plan import ObservationPlan
 from doabench.framing import FrameSpec
-from doabench.geometry import great_circle_error, parse_resolution
+from doabench.geometry import fold_to_upper, great_circle_error, parse_resolution
 
 FEATURE_KINDS = OBSERVATION_KINDS  # the plan's list (doabench.features.kinds), under the environment's name
 
@@ -181,7 +181,7 @@ class DoaEnv(gymnasium.Env):
             raise InputError(f"action must be a finite, non-zero direction vector of shape (3,), got {a.shape} "
                              f"{a!r}")
         truth = self._truth["directions"][self._t]
-        error = float(great_circle_error(a, truth))
+        error = float(great_circle_error(*self._as_scored(a, truth)))
         info = {"frame": self._t, "truth": truth.copy(), "vad": bool(self._truth["vad"][self._t]),
                 "error_rad": error, "time_s": float(self._truth["times"][self._t])}
         self._t += 1
@@ -210,9 +210,16 @@ class DoaEnv(gymnasium.Env):
         if a.shape != (self._n_frames, 3) or not np.all(np.isfinite(a)) or not np.all(np.any(a, axis=1)):
             raise InputError(f"directions must be finite, non-zero vectors of shape ({self._n_frames}, 3), "
                              f"got {a.shape}")
-        errors = np.asarray(great_circle_error(a, self._truth["directions"]), dtype=np.float64).reshape(-1)
+        errors = np.asarray(great_circle_error(*self._as_scored(a, self._truth["directions"])),
+                            dtype=np.float64).reshape(-1)
         self._t = self._n_frames
         return errors
+
+    def _as_scored(self, estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Estimate and truth as every score sees them (doabench.metrics.score_frames): mirror-folded
+        onto the upper half-space for a planar array, which cannot tell a direction from its mirror."""
+        array = self._episode.array or self.array
+        return (fold_to_upper(estimate), fold_to_upper(truth)) if array.planar else (estimate, truth)
 
     # -- what the tracker may use besides the observations -----------------------------------------
     @property
