@@ -244,6 +244,14 @@ class NeuralTracker(doabench.Tracker):
         )
         return d
 
+    @property
+    def trained_delays(self) -> str | None:
+        """The SRP delay mode of the maps its weights were trained on (their metadata), or None
+        for random weights."""
+        if self._meta is None:
+            return None
+        return (self._meta.get("features") or {}).get("delay_mode") or "nearest"
+
     def save_weights(self, path: str | Path, metadata: Mapping[str, Any] | None = None) -> Path:
         """Write the network to a weight file (training protocol: ``save_weights(path, metadata)``).
 

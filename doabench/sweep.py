@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from doabench.errors import ConfigError, DoabenchError, OutputError
+from doabench.trackers.base import resolve_delays
 
 
 @dataclass
@@ -98,8 +99,10 @@ def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | N
 
 def execute_run(tracker_id: str, task_id: str, out: str | Path, episodes: int | None, delays: str,
                 options: dict[str, Any], keep_frames: bool, env_options: dict[str, Any],
-                progress: bool | Callable = False) -> dict[str, Any]:
+                progress: bool | Callable = False, requested_delays: str | None = None) -> dict[str, Any]:
     """One run as ``doabench run`` does it (journal + lock in ``out``); returns the results dict.
+    ``delays``: the mode the run uses (it names the files); ``requested_delays``: what the user
+    asked for (None: the tracker's trained mode), so the results record an override.
 
     Top-level (picklable) so that a Ray worker can run it; the caller writes the results."""
     from doabench.runner import run_lock, run_task
@@ -110,7 +113,7 @@ def execute_run(tracker_id: str, task_id: str, out: str | Path, episodes: int | 
     tracker = make_tracker(tracker_id, **options)
     partial = partial_path_for(out, task_id, tracker_id, options, delays)
     with run_lock(partial):
-        results = run_task(tracker, task_id, episodes=episodes, delays=delays, tracker_options=options,
+        results = run_task(tracker, task_id, episodes=episodes, delays=requested_delays, tracker_options=options,
                            partial_path=partial, progress=progress, keep_frames=keep_frames, lock=False,
                            **env_options)
     results["tracker"]["id"] = tracker_id
@@ -128,7 +131,7 @@ def _finish(run: SweepRun, results: dict[str, Any], out: Path, options: dict[str
 
 
 def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | Path,
-          episodes: int | None = None, delays: str = "nearest", tracker_options: dict[str, Any] | None = None,
+          episodes: int | None = None, delays: str | None = None, tracker_options: dict[str, Any] | None = None,
           keep_frames: bool = True, engine: str = "local", ray_address: str | None = None,
           workers: int | None = None, leaderboard: str | Path | None = None,
           log: Callable[[str], None] = print, progress: bool = False, overwrite: bool = False,
@@ -155,6 +158,8 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     opts = {cid: o for cid, o in canonical.values()}
     weights = {canonical[t][0]: tracker.weights_hash() for t, tracker in built.items()}
     versions = {canonical[t][0]: tracker.version for t, tracker in built.items()}
+    # each tracker on the observations it was trained on, unless --delays asks for others
+    delays_of = {canonical[t][0]: resolve_delays(tracker, delays)[0] for t, tracker in built.items()}
     trackers = list(dict.fromkeys(cid for cid, _ in canonical.values()))
     del built
     out = Path(out)
@@ -162,17 +167,17 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     runs = [SweepRun(tracker, task) for task in task_ids for tracker in trackers]
     todo = []
     for run in runs:
-        path = finished_results(out, run.task, run.tracker, episodes, delays, opts[run.tracker], weights[run.tracker],
-                                versions[run.tracker])
+        path = finished_results(out, run.task, run.tracker, episodes, delays_of[run.tracker], opts[run.tracker],
+                                weights[run.tracker], versions[run.tracker])
         if path is not None:
             run.status, run.json_path = "skipped", path
             log(f"{run.tracker} on {run.task}: already done ({path.name})")
             continue
         try:  # refuse to replace another configuration's file now, not after the run
             spec = get_task_spec(run.task)
-            check_overwrite(out / f"{run_stem(run.task, run.tracker, opts[run.tracker], delays)}.json",
+            check_overwrite(out / f"{run_stem(run.task, run.tracker, opts[run.tracker], delays_of[run.tracker])}.json",
                             configuration(spec.id, spec.version, run.tracker, opts[run.tracker], weights[run.tracker],
-                                          delays), overwrite)
+                                          delays_of[run.tracker]), overwrite)
         except DoabenchError as exc:
             run.status, run.error = "failed", str(exc)
             _log_run(run, log)
@@ -182,9 +187,9 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
         for run in todo:
             t0 = time.perf_counter()
             try:
-                results = execute_run(run.tracker, run.task, out, episodes, delays, opts[run.tracker], keep_frames,
-                                      env_options, progress=progress)
-                _finish(run, results, out, opts[run.tracker], delays, overwrite)
+                results = execute_run(run.tracker, run.task, out, episodes, delays_of[run.tracker], opts[run.tracker],
+                                      keep_frames, env_options, progress=progress, requested_delays=delays)
+                _finish(run, results, out, opts[run.tracker], delays_of[run.tracker], overwrite)
             except OutputError:
                 raise  # a full disk or read-only folder fails every later run too: stop, journals kept
             except DoabenchError as exc:
@@ -192,8 +197,8 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
             run.seconds = time.perf_counter() - t0
             _log_run(run, log)
     elif todo:
-        _sweep_ray(todo, out, (episodes, delays, keep_frames, env_options), opts, ray_address, workers, log,
-                   overwrite)
+        _sweep_ray(todo, out, (episodes, delays_of, keep_frames, env_options), opts, ray_address, workers, log,
+                   overwrite, delays)
     result = SweepResult(out, runs)
     if any(r.status in ("done", "skipped") for r in runs):
         from doabench.results.leaderboard import build_leaderboards, default_references, write_leaderboards
@@ -214,25 +219,28 @@ def _log_run(run: SweepRun, log: Callable[[str], None]) -> None:
 
 
 def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, opts: dict[str, dict[str, Any]], address: str | None,
-               workers: int | None, log: Callable[[str], None], overwrite: bool = False) -> None:
-    """``args``: ``(episodes, delays, keep_frames, env_options)`` of every run; ``opts``: each
-    tracker's (canonical) options."""
-    episodes, delays, keep_frames, env_options = args
+               workers: int | None, log: Callable[[str], None], overwrite: bool = False,
+               requested_delays: str | None = None) -> None:
+    """``args``: ``(episodes, delays_of, keep_frames, env_options)`` of every run, ``delays_of``
+    the delay mode of each tracker's runs; ``opts``: each tracker's (canonical) options;
+    ``requested_delays``: the user's ``--delays`` (None: each tracker's trained mode)."""
+    episodes, delays_of, keep_frames, env_options = args
     from doabench.ray_support import ray_session, unwrap
 
     with ray_session(address, workers or (None if address else min(len(todo), 2))) as ray:
         remote = ray.remote(num_cpus=1)(execute_run)
         # The out folder is passed as an absolute path: on a cluster it must be a shared folder
         # (the workers keep the runs' journals there); the driver writes the results files.
-        refs = {remote.remote(run.tracker, run.task, str(out.resolve()), episodes, delays, opts[run.tracker],
-                              keep_frames, env_options): (run, time.perf_counter())
+        refs = {remote.remote(run.tracker, run.task, str(out.resolve()), episodes, delays_of[run.tracker],
+                              opts[run.tracker], keep_frames, env_options, False, requested_delays): (run, time.perf_counter())
                 for run in todo}
         try:
             while refs:
                 ready, _ = ray.wait(list(refs), num_returns=1)
                 run, t0 = refs.pop(ready[0])
                 try:
-                    _finish(run, ray.get(ready[0]), out, options=opts[run.tracker], delays=delays, overwrite=overwrite)
+                    _finish(run, ray.get(ready[0]), out, options=opts[run.tracker], delays=delays_of[run.tracker],
+                            overwrite=overwrite)
                 except Exception as exc:
                     exc = unwrap(exc)
                     if not isinstance(exc, DoabenchError) or isinstance(exc, OutputError):

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from doabench.cli.common import add_corpus_options, add_threads_option, add_tracker_options, corpus_kwargs, use_threads
@@ -23,7 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cells", metavar="IDS",
                    help="grid tasks: run only these cells (comma-separated cell task ids, doabench list tasks); "
                         "with --episodes, N episodes spread over them")
-    p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
+    p.add_argument("--delays", choices=["nearest", "exact"], default=None,
+                   help="SRP-PHAT delay mode (default: the one the tracker's weights were trained on, else nearest; "
+                        "another is used on purpose and the results record the trained one)")
     p.add_argument("--out", default=DEFAULT_OUT,
                    help=f"folder for results files (default: {DEFAULT_OUT}/, git-ignored; the committed results/ "
                         "change only through `make update-demo-results` or an explicit --out results)")
@@ -41,6 +44,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.results.writer import (alias_files, check_overwrite, configuration, format_summary, results_stem,
                                          write_results)
     from doabench.runner import run_task
+    from doabench.trackers.base import resolve_delays
     from doabench.trackers.registry import canonical_tracker, parse_options
     from doabench.envs.registry import get_task_spec
 
@@ -55,6 +59,10 @@ def main(args: argparse.Namespace) -> int:
     # One model, one name: aliases (cross3d = cross3d:16x32, default-valued options) resolve to
     # the canonical id and options before the file is named.
     tracker_id, options = canonical_tracker(args.tracker, options, tracker)
+    delays, trained_delays = resolve_delays(tracker, args.delays)
+    if trained_delays is not None:
+        print(f"note: {tracker_id} was trained on {trained_delays} SRP delays; running with --delays {delays} "
+              "as asked (the results record both)", file=sys.stderr)
     spec = get_task_spec(args.task)
     if args.vad and spec.kind != "locata":
         from doabench.errors import ConfigError
@@ -62,10 +70,10 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.id!r} is {spec.kind} (its VAD is the scene's)")
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
-    stem = results_stem(spec.id, tracker_id, options, args.delays, tracker.weights_hash())
+    stem = results_stem(spec.id, tracker_id, options, delays, tracker.weights_hash())
     # Refused before the work: a file of another configuration under this name (never overwritten silently).
     check_overwrite(out / f"{stem}.json", configuration(spec.id, spec.version, tracker_id, options,
-                                                       tracker.weights_hash(), args.delays), args.overwrite)
+                                                       tracker.weights_hash(), delays), args.overwrite)
     partial = out / f".{stem}.partial.jsonl"
     set_interrupt_note(args, lambda: _kept(args, partial))
     try:

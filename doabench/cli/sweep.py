@@ -21,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int,
                    help="run only N episodes of each task (grid tasks: spread over the cells, as `doabench run "
                         "--episodes` does); partial runs are listed apart, unranked, on the leaderboard")
-    p.add_argument("--delays", choices=["nearest", "exact"], default="nearest", help="SRP-PHAT delay mode")
+    p.add_argument("--delays", choices=["nearest", "exact"], default=None,
+                   help="SRP-PHAT delay mode (default: each tracker's trained one, else nearest)")
     p.add_argument("--out", default="runs/sweep",
                    help="results folder of every run (default: runs/sweep/, git-ignored)")
     p.add_argument("--leaderboard", metavar="DIR", help="leaderboard folder (default: OUT/leaderboard)")

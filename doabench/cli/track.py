@@ -22,7 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("recording", metavar="REC.wav")
     p.add_argument("--array", default="nao", help="built-in array name or JSON/YAML array file (default: nao)")
     add_tracker_options(p, required=False, default="srp-max")
-    p.add_argument("--delays", choices=["nearest", "exact"], default="nearest")
+    p.add_argument("--delays", choices=["nearest", "exact"], default=None,
+                   help="SRP-PHAT delay mode (default: the one the tracker's weights were trained on, else nearest)")
     p.add_argument("--vad", choices=["webrtc", "none", "truth"], default="webrtc",
                    help="frame voice activity: WebRTC VAD on the channel mean (default), every frame active, or "
                         "truth: the vad column of --truth (as `doabench run` uses the scene's VAD, so a "
@@ -172,6 +173,7 @@ def main(args: argparse.Namespace) -> int:
     # An untrained learned model is refused unless weights=random.
     tracker = make_checked_tracker(args.tracker, parse_options(args.tracker_opt))
     from doabench.runner import recordings
+    from doabench.trackers.base import resolve_delays
 
     array = get_array(args.array)
     spec = tracker.frame_spec
@@ -189,7 +191,7 @@ def main(args: argparse.Namespace) -> int:
             raise InputError(f"--vad truth: {args.truth} has no vad column")
         sample_vad = samples_from_frame_vad(truth["vad"], rec.samples, spec.window, spec.hop)
     chunks, silent = recordings.recording_chunks(rec, args.vad, sample_vad=sample_vad)
-    out = recordings.track_stream(tracker, array, chunks, args.delays, args.device)
+    out = recordings.track_stream(tracker, array, chunks, resolve_delays(tracker, args.delays)[0], args.device)
     if silent or not out["vad"].any():
         why = ("the recording is digital silence (all samples zero)" if silent else
                "the truth's vad column has no active frame" if args.vad == "truth" else "the VAD found no speech")

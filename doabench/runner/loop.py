@@ -28,7 +28,7 @@ from doabench.runner.journal import append_record, config_hash, load_journal, ru
 from doabench.runner.episode_cache import cache_episodes
 from doabench.runner.selection import select_episodes
 from doabench.runner.summary import build_results, episode_row, score
-from doabench.trackers.base import Tracker
+from doabench.trackers.base import Tracker, resolve_delays
 from doabench.trackers.registry import canonical_tracker, make_tracker
 
 
@@ -156,7 +156,7 @@ def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
 
 
 def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,
-             device: str | None = None, delays: str = "nearest", tracker_options: dict | None = None,
+             device: str | None = None, delays: str | None = None, tracker_options: dict | None = None,
              partial_path: str | Path | None = None, progress: bool | Callable = True,
              keep_frames: bool = True, lock: bool = True, cells: Sequence[str] | None = None,
              **env_options: Any) -> dict[str, Any]:
@@ -184,6 +184,8 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     except DoabenchError:  # an instance of an unregistered class keeps its own name
         pass
     spec = get_task_spec(task)
+    # The observations the tracker was trained on unless the caller asks for others on purpose.
+    delays, trained_delays = resolve_delays(tracker, delays)
     provenance = environment(device)  # taken before the work: the code that runs is the code recorded
     wall_start = time.perf_counter()
     env = make_env_for(tracker, task, device=device, delays=delays, **env_options)
@@ -202,8 +204,11 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     # This invocation's wall time plus that of the episodes earlier invocations journalled.
     earlier = sum(float(r.get("wall_s", 0.0)) for r in records if not r.pop("_new", False))
     wall_s = earlier + (time.perf_counter() - wall_start)
-    return build_results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays,
-                         selection)
+    results = build_results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays,
+                            selection)
+    if trained_delays is not None:
+        results["features"]["trained_delays"] = trained_delays
+    return results
 
 
 def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep_frames, wall_start) -> list[dict]:

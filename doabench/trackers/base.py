@@ -56,6 +56,16 @@ class ResetContext(TypedDict, total=False):
     task: str                # id of the task the episode comes from
 
 
+def resolve_delays(tracker: "Tracker", requested: str | None) -> tuple[str, str | None]:
+    """The SRP delay mode a run uses and, when it is not the one the tracker was trained on, that
+    trained mode: ``requested`` None (no ``--delays``) takes the trained mode (``nearest`` for a
+    tracker trained on none); an explicit request wins, on purpose, and the results say so."""
+    trained = tracker.trained_delays
+    if requested is None:
+        return trained or "nearest", None
+    return requested, trained if trained not in (None, requested) else None
+
+
 class Tracker:
     """Base class of every tracker. See the module docstring for the contract."""
 
@@ -86,6 +96,13 @@ class Tracker:
     def frame_spec(self) -> FrameSpec:
         """Window, hop and sample rate of the features it needs."""
         return FrameSpec()
+
+    @property
+    def trained_delays(self) -> str | None:
+        """The SRP delay mode (``nearest``, ``exact``) its weights were trained on, or None when
+        it was trained on none (a classical tracker, random weights): a run uses this mode unless
+        the user asks for another on purpose (:func:`resolve_delays`)."""
+        return None
 
     @property
     def receptive_field_frames(self) -> int | None:
