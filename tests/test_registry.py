@@ -154,3 +154,15 @@ def test_commands_that_need_no_tensors_do_not_import_torch(argv):
             "print('TORCH', 'torch' in sys.modules)" % (argv,))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert "TORCH False" in out.stdout, out.stdout[-500:] + out.stderr[-2000:]
+
+
+def test_a_misspelt_task_option_is_refused_with_the_nearest_name():
+    import doabench
+    from doabench.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="unknown task option 'librispeach'; did you mean 'librispeech'"):
+        doabench.run(tracker="srp-max:4x8", task="sim-demo", episodes=1, progress=False, librispeach="/data")
+    # another kind's option (one command line serves every kind) and an option not given pass
+    quick = {"duration_s": 2.0, "n_points": 8}
+    doabench.run(tracker="srp-max:4x8", task="sim-demo", episodes=1, progress=False, scene_overrides=quick,
+                 locata_root=None, split=None)

@@ -12,6 +12,8 @@ running random state.
 """
 from __future__ import annotations
 
+import difflib
+import inspect
 from importlib import metadata
 from typing import Any, Callable, Protocol
 
@@ -62,7 +64,34 @@ def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
             f"; the installed doabench metadata declares no {ENTRY_POINT_GROUP} entry points: reinstall doabench "
             "(pip install -e .)")
         raise ConfigError(f"task {spec.id!r}: unknown kind {spec.kind!r} (known: {', '.join(known)}){hint}")
+    check_options(options)
     return _KINDS[spec.kind](spec, **options)
+
+
+def kind_options(factory: Callable[..., EpisodeSource]) -> set[str]:
+    """The run-time options a kind's factory names (its keyword parameters after the spec)."""
+    params = list(inspect.signature(factory).parameters.values())[1:]
+    return {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+
+
+def check_options(options: dict[str, Any]) -> None:
+    """Refuse a run-time option that no task kind takes (``librispeach=...``), naming the nearest
+    one: a misspelt option must not be silently ignored. Options of other kinds are accepted
+    (one command line serves every kind: ``--locata-root`` on a simulated task does nothing), and
+    so is ``None``, an option not given."""
+    given = {k for k, v in options.items() if v is not None}
+    if not given:
+        return
+    for kind in available_task_kinds():
+        if kind not in _KINDS:
+            _load_kind(kind)
+    known = set().union(*(kind_options(f) for f in _KINDS.values()))
+    unknown = sorted(given - known)
+    if unknown:
+        name = unknown[0]
+        near = difflib.get_close_matches(name, sorted(known), n=1)
+        hint = f"; did you mean {near[0]!r}?" if near else f" (options: {', '.join(sorted(known))})"
+        raise ConfigError(f"unknown task option {name!r}{hint}")
 
 
 def episode_seed(base_seed: int, *keys: int) -> int:
