@@ -115,5 +115,5 @@ __all__ = [
     "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ResetContext",
     "TaskSpec", "Tracker", "TrainableTracker", "atomic_path", "available_tasks", "available_trackers", "get_array", "get_task_spec",
     "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",
-    "srp_maps",
+    "srp_maps", "__version__",
 ]

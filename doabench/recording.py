@@ -217,7 +217,7 @@ class StreamingWebrtcVad:
             self._classify(padded)
             self._rest = np.zeros(0, np.float32)
         last = self.length - (self.length - 1) // self.frame_len * self.frame_len if self.length else 0
-        for mode, parts in zip(self.modes, self._decisions):
+        for mode, parts in zip(self.modes, self._decisions):  # noqa: B007  (the mode that stops the loop is returned)
             d = np.concatenate(parts) if parts else np.zeros(0, bool)
             active = int(d[:-1].sum()) * self.frame_len + (last if d.size and d[-1] else 0)
             if self.length and active / self.length >= self.min_active:

@@ -382,7 +382,7 @@ def model_card(name: str, sha: str, run: dict[str, Any] | None, root: Path = ROO
               + (f", receptive field {d['receptive_field_frames']} frames ({float(d['receptive_field_s']):.2f} s)"
                  if d.get("receptive_field_frames") and d.get("causal") else "")
               + (f"; holds its estimate after {d['hold_frames']} silent frames (`hold=auto`)" if d.get("hold_frames")
-                 else "") + f". Architecture: [Network architectures](models.md).", ""]
+                 else "") + ". Architecture: [Network architectures](models.md).", ""]
     task = t.get("task")
     log = _log(run["folder"]) if run else []
     last = log[-1] if log else {}

@@ -11,7 +11,7 @@ import pytest
 
 from doabench.cli.main import main as cli
 from doabench.errors import InputError
-from doabench.results.leaderboard import build_leaderboards, stale_files, write_leaderboards
+from doabench.results.leaderboard import build_leaderboards, stale_files
 from doabench.results.ranking import load_runs
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -41,7 +41,7 @@ def test_a_log_file_gets_the_count_too() -> None:
     least), the count is the batches done, not 0."""
     stream = io.StringIO()
     bar = EpochProgress(3, "epoch 1/1", file=stream)
-    for k in range(3):
+    for _ in range(3):
         bar.step(0.5)
     assert bar.bar.n == 3
     bar.close()

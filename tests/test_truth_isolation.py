@@ -208,7 +208,7 @@ def test_environment_info_holds_no_truth_before_the_frame_is_scored():
     with pytest.raises(RuntimeError, match="once the episode is over"):
         env.unwrapped.episode_truth()
     with pytest.raises(RuntimeError, match="once the episode is over"):
-        env.unwrapped.current_episode
+        _ = env.unwrapped.current_episode
     t, terminated = 0, False
     while not terminated:
         obs, _, terminated, _, info = env.step(np.array([0.0, 0.0, 1.0], np.float32))

@@ -24,10 +24,8 @@ from gymnasium import spaces
 from doabench.arrays import MicArray, get_array
 from doabench.features.kinds import (
     DEFAULT_RESOLUTION,
-    EXTRACTOR_KINDS,
     FRAMED_KINDS,
     MAP_KINDS,
-    check_kinds,
     item_name,
 )
 from doabench.framing import FrameSpec, frame_signal

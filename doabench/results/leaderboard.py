@@ -402,7 +402,7 @@ def task_markdown(board: TaskBoard, command: str) -> str:
                       "MAE, median, ≤10° and azimuth MAE are pooled over non-silent frames. Frames whose truth "
                       "is invalid (valid_flag = 0) are not scored. Definitions: docs/concepts.md.", ""]
         else:
-            lines += [f"Ranked by RMSAE over all frames (degrees, pooled over every frame of every episode; "
+            lines += ["Ranked by RMSAE over all frames (degrees, pooled over every frame of every episode; "
                       "ties by tracker id). Brackets: 95% bootstrap interval over episodes (1000 resamples). "
                       "MAE, median, ≤10° and azimuth MAE are over non-silent frames. Definitions: docs/concepts.md.", ""]
         rows = [_main_row(i, run, labels[run.path], by_recording, with_lag) for i, run in enumerate(board.runs, start=1)]

@@ -207,7 +207,7 @@ def run_distributed(options, log: Callable[[str], None] = print, timeout_s: floa
             trainer.__dict__.pop("train_step", None)
             trainer.train_forward = trainer.network
             trainer.dist = None
-        trainer = state = None
+        trainer = state = None  # noqa: F841  (drop the last references before the collection)
         gc.collect()
         dist.destroy_process_group()
 

@@ -60,7 +60,7 @@ class TrainableTracker(Protocol):
 def check_trainable(tracker: Any, name: str) -> TrainableTracker:
     """Return ``tracker`` if it implements the protocol, else raise a one-line ConfigError."""
     missing = [a for a in REQUIRED_ATTRIBUTES if not hasattr(tracker, a)]
-    network = None if missing else getattr(tracker, "network")
+    network = None if missing else tracker.network
     if missing or not isinstance(network, torch.nn.Module):
         raise ConfigError(f"tracker {name!r} is not a learned tracker (it has no trainable network); "
                           "`doabench train` needs one such as cross3d:8x16 or gcc-cnn1d")

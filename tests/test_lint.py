@@ -1,0 +1,14 @@
+"""The code passes the project's lint rules (ruff, configured in pyproject.toml)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_ruff_finds_nothing():
+    done = subprocess.run([sys.executable, "-m", "ruff", "check", "doabench", "baselines", "tests", "scripts",
+                           "benchmarks"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
