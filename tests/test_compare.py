@@ -175,3 +175,23 @@ def test_shipped_results_pool_as_the_leaderboards_do(capsys):
     assert pooled["rmsae_all"].a == pytest.approx(ra["rmsae_all"]) and pooled["rmsae_all"].b == pytest.approx(rb["rmsae_all"])
     assert pooled["rmsae_nonsilent"].a == pytest.approx(ra["rmsae_nonsilent"])
     assert pooled["mae"].a == pytest.approx(ra["pooled"]["mae"])
+
+
+def test_two_renderings_of_the_same_scenes_pair_by_seed(tmp_path, capsys):
+    # sim-walk (builtin) and sim-walk-pra (pyroomacoustics) draw the same scenes: other task ids and
+    # episode indices, the same seeds; --by-seed pairs them, without it they are refused
+    builtin = _results("srp-max:32x64", BASE, task="sim-walk", version=1)
+    pra = _results("srp-max:32x64", [e + 1.0 for e in BASE[:4]], task="sim-walk-pra", version=1)
+    for i, row in enumerate(pra["episodes"]):  # the first episodes of each cell, renumbered
+        row["episode"] = 100 + i
+    a, b = _write(tmp_path, "walk.json", builtin), _write(tmp_path, "walk-pra.json", pra)
+    assert main(["compare", str(a), str(b)]) == 2
+    assert "only runs of the same task" in capsys.readouterr().err
+    assert main(["compare", str(a), str(b), "--by-seed"]) == 0
+    assert "4 episodes in common" in capsys.readouterr().out
+    comparison = cmp.compare(cmp.load_run(b), cmp.load_run(a), by_seed=True)
+    assert comparison.pooled[0].diff == pytest.approx(
+        float(np.sqrt(np.mean(np.square(np.add(BASE[:4], 1.0))))) - float(np.sqrt(np.mean(np.square(BASE[:4])))))
+    no_shared = _results("srp-max:32x64", BASE, task="sim-walk-pra", seeds=list(range(900, 908)))
+    with pytest.raises(Exception, match="share no scene seed"):
+        cmp.compare(cmp.load_run(a), cmp.load_run(_write(tmp_path, "other.json", no_shared)), by_seed=True)

@@ -29,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cell-metrics", default="rmsae_all,rmsae_nonsilent,lag_s", metavar="LIST",
                    help="metrics shown per cell in the Markdown (default rmsae_all,rmsae_nonsilent,lag_s; "
                         "the CSV has them all)")
+    p.add_argument("--by-seed", action="store_true",
+                   help="pair the episodes of two tasks that render the same scenes (same scene seeds) differently, "
+                        "e.g. sim-walk and sim-walk-pra (builtin against pyroomacoustics)")
     p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
     p.set_defaults(func=main)
@@ -71,7 +74,8 @@ def main(args: argparse.Namespace) -> int:
     if not others and not args.silence:
         raise InputError(f"nothing to compare {first.path} with: give another results file of the same task")
     cmp._distinct_labels([first, *others])
-    comparisons = [cmp.compare(first, other, args.silence, holds, args.resamples, args.seed) for other in others]
+    comparisons = [cmp.compare(first, other, args.silence, holds, args.resamples, args.seed, by_seed=args.by_seed)
+                   for other in others]
     breakdowns = []
     if args.silence:
         if comparisons:  # each run over the episodes it shares with the first (all compared runs share them)

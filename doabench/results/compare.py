@@ -126,9 +126,15 @@ def _frames_by_episode(run: Run) -> dict[int, dict[str, Any]] | None:
     return {int(row["episode"]): {**f, "planar": planar} for row, f in zip(run.rows, frames)}
 
 
-def pair(a: Run, b: Run) -> Pairing:
-    """The episodes ``a`` and ``b`` share; InputError saying why when they cannot be paired."""
+def pair(a: Run, b: Run, by_seed: bool = False) -> Pairing:
+    """The episodes ``a`` and ``b`` share; InputError saying why when they cannot be paired.
+
+    ``by_seed``: pair the episodes of two *tasks* that draw the same scenes (same scene seeds) and
+    render them differently, e.g. ``sim-walk`` and ``sim-walk-pra`` (builtin and pyroomacoustics):
+    episodes are matched by seed, the cells are ``a``'s."""
     ta, tb = a.task, b.task
+    if by_seed:
+        return _pair_by_seed(a, b)
     if ta.get("id") != tb.get("id"):
         raise InputError(f"{a.path} is a run of task {ta.get('id')} and {b.path} of task {tb.get('id')}: "
                          "only runs of the same task share episodes")
@@ -165,6 +171,23 @@ def pair(a: Run, b: Run) -> Pairing:
         cell = str(row.get("task") or task_id)
         if cell != task_id:
             cells.setdefault(cell, []).append(i)
+    return Pairing(a, b, shared_a, shared_b, frames_a, frames_b,
+                   {k: np.asarray(v) for k, v in cells.items()} if len(cells) > 1 else {})
+
+
+def _pair_by_seed(a: Run, b: Run) -> Pairing:
+    by_b = {r.get("seed"): r for r in b.rows if r.get("seed") is not None}
+    shared_a = [r for r in sorted(a.rows, key=lambda r: int(r["episode"])) if r.get("seed") in by_b]
+    if not shared_a:
+        raise InputError(f"{a.path} ({a.task.get('id')}) and {b.path} ({b.task.get('id')}) share no scene seed: "
+                         "they are not renderings of the same scenes")
+    shared_b = [by_b[r["seed"]] for r in shared_a]
+    fa, fb = _frames_by_episode(a), _frames_by_episode(b)
+    frames_a = [fa[int(r["episode"])] for r in shared_a] if fa is not None else None
+    frames_b = [fb[int(r["episode"])] for r in shared_b] if fb is not None else None
+    cells: dict[str, list[int]] = {}
+    for i, row in enumerate(shared_a):
+        cells.setdefault(str(row.get("task") or a.task.get("id")), []).append(i)
     return Pairing(a, b, shared_a, shared_b, frames_a, frames_b,
                    {k: np.asarray(v) for k, v in cells.items()} if len(cells) > 1 else {})
 
@@ -463,10 +486,10 @@ class Comparison:
 
 
 def compare(a: Run, b: Run, silence: bool = False, holds: Sequence[int] = (), n_resamples: int = N_RESAMPLES,
-            seed: int = 0, only: Sequence[str] | None = None) -> Comparison:
-    """Pair ``a`` and ``b`` and compare every metric both carry (or those named in ``only``),
-    pooled and per cell."""
-    p = pair(a, b)
+            seed: int = 0, only: Sequence[str] | None = None, by_seed: bool = False) -> Comparison:
+    """Pair ``a`` and ``b`` (by scene seed across two tasks with ``by_seed``) and compare every
+    metric both carry (or those named in ``only``), pooled and per cell."""
+    p = pair(a, b, by_seed)
     frames = p.frames_a is not None and p.frames_b is not None
     notes = []
     if (silence or holds) and not frames:
