@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from doabench.errors import ConfigError, DoabenchError, OutputError
-from doabench.trackers.base import resolve_delays
+from doabench.runner.spec import RunSpec
 
 
 @dataclass
@@ -51,81 +51,41 @@ def parse_list(text: str | Sequence[str], what: str) -> list[str]:
     return list(dict.fromkeys(items))  # duplicates once, order kept
 
 
-def run_stem(task_id: str, tracker_id: str, options: dict[str, Any] | None = None, delays: str = "nearest") -> str:
-    """The results file stem ``doabench run`` gives this configuration (options, delays and a
-    ``weights=FILE``'s content hash included), so a sweep finds its own finished runs."""
-    from doabench.results.provenance import sha256_file
-    from doabench.results.writer import results_stem
+def finished_results(out: Path, spec: RunSpec, episodes: int | None, tracker_version: str | None = None) -> Path | None:
+    """The results file of a finished run of ``spec`` in ``out``, else None (the run is (re)done):
+    the same configuration (task and version, tracker, options, weights, delays), as many episodes,
+    and the same ``tracker_version`` (``Tracker.version``) when one is given."""
+    from doabench.results.writer import results_configuration
 
-    weights = (options or {}).get("weights")
-    weights_hash = sha256_file(weights) if weights and Path(str(weights)).is_file() else None
-    return results_stem(task_id, tracker_id, options, delays, weights_hash)
-
-
-def partial_path_for(out: Path, task_id: str, tracker_id: str, options: dict[str, Any] | None = None,
-                     delays: str = "nearest") -> Path:
-    return out / f".{run_stem(task_id, tracker_id, options, delays)}.partial.jsonl"
-
-
-def finished_results(out: Path, task_id: str, tracker_id: str, episodes: int | None, delays: str,
-                     options: dict[str, Any], weights_hash: str | None = None,
-                     tracker_version: str | None = None) -> Path | None:
-    """The results file of a finished run with these settings, else None (the run is (re)done).
-
-    ``weights_hash``: the tracker's weights now (``Tracker.weights_hash()``); a file written with
-    other weights (e.g. before new shipped weights) is not finished for this sweep. Likewise a
-    file written by another ``tracker_version`` (``Tracker.version``) when one is given."""
-    from doabench.envs.registry import get_task_spec
-    from doabench.results.writer import configuration, results_configuration
-
-    path = out / f"{run_stem(task_id, tracker_id, options, delays)}.json"
-    if not path.is_file() or partial_path_for(out, task_id, tracker_id, options, delays).exists():
+    path = spec.results_path(out)
+    if not path.is_file() or spec.journal_path(out).exists():
         return None
     try:
         r = json.loads(path.read_text())
-        spec = get_task_spec(task_id)
         total = int(r["task"]["episodes_total"])
         want = total if episodes is None else min(int(episodes), total)
-        # the same configuration (results.writer.configuration: task and version, tracker, options,
-        # weights, delays), as many episodes, and the same tracker version
-        same = (results_configuration(r) == configuration(spec.id, spec.version, tracker_id, options,
-                                                          weights_hash, delays)
-                and int(r["task"]["episodes_run"]) == want
+        same = (results_configuration(r) == spec.configuration() and int(r["task"]["episodes_run"]) == want
                 and (tracker_version is None or str(r["tracker"].get("version")) == str(tracker_version)))
     except (OSError, ValueError, KeyError, TypeError, DoabenchError):
         return None
     return path if same else None
 
 
-def execute_run(tracker_id: str, task_id: str, out: str | Path, episodes: int | None, delays: str,
-                options: dict[str, Any], keep_frames: bool, env_options: dict[str, Any],
-                progress: bool | Callable = False, requested_delays: str | None = None) -> dict[str, Any]:
+def execute_run(spec: RunSpec, out: str | Path, episodes: int | None, keep_frames: bool, env_options: dict[str, Any],
+                progress: bool | Callable = False) -> dict[str, Any]:
     """One run as ``doabench run`` does it (journal + lock in ``out``); returns the results dict.
-    ``delays``: the mode the run uses (it names the files); ``requested_delays``: what the user
-    asked for (None: the tracker's trained mode), so the results record an override.
 
-    Top-level (picklable) so that a Ray worker can run it; the caller writes the results."""
-    from doabench.runner import run_lock, run_task
-    from doabench.trackers.registry import make_tracker
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    tracker = make_tracker(tracker_id, **options)
-    partial = partial_path_for(out, task_id, tracker_id, options, delays)
-    with run_lock(partial):
-        results = run_task(tracker, task_id, episodes=episodes, delays=requested_delays, tracker_options=options,
-                           partial_path=partial, progress=progress, keep_frames=keep_frames, lock=False,
-                           **env_options)
-    results["tracker"]["id"] = tracker_id
-    return results
+    Top-level (picklable, and so is the spec) so that a Ray worker can run it; the caller writes
+    the results."""
+    return spec.execute(spec.make_tracker(), out, episodes=episodes, progress=progress, keep_frames=keep_frames,
+                        **env_options)
 
 
-def _finish(run: SweepRun, results: dict[str, Any], out: Path, options: dict[str, Any], delays: str,
-            overwrite: bool = False) -> None:
+def _finish(run: SweepRun, results: dict[str, Any], out: Path, spec: RunSpec, overwrite: bool = False) -> None:
     from doabench.results.writer import write_results
 
     json_path, _ = write_results(results, out, overwrite=overwrite)
-    partial_path_for(out, run.task, run.tracker, options, delays).unlink(missing_ok=True)
+    spec.journal_path(out).unlink(missing_ok=True)
     run.status, run.json_path = "done", json_path
     run.rmsae_all = float(results["summary"]["rmsae_all"])
 
@@ -143,8 +103,8 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     replaced only with ``overwrite``; without it that run fails at once, before any work."""
     from doabench.envs.registry import get_task_spec
     from doabench.ray_support import check_engine, require_ray
-    from doabench.results.writer import check_overwrite, configuration
-    from doabench.trackers.registry import canonical_tracker, make_tracker
+    from doabench.results.writer import check_overwrite
+    from doabench.trackers.registry import make_tracker
 
     check_engine(engine)
     if engine == "ray":
@@ -152,32 +112,32 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     trackers, tasks = parse_list(trackers, "trackers"), parse_list(tasks, "tasks")
     options = dict(tracker_options or {})
     task_ids = [get_task_spec(t).id for t in tasks]  # unknown ids: one line, before any work
-    built = {t: make_tracker(t, **options) for t in trackers}
-    # One model, one run: aliases (cross3d, cross3d:16x32) resolve to one canonical id and options.
-    canonical = {t: canonical_tracker(t, options, tracker) for t, tracker in built.items()}
-    opts = {cid: o for cid, o in canonical.values()}
-    weights = {canonical[t][0]: tracker.weights_hash() for t, tracker in built.items()}
-    versions = {canonical[t][0]: tracker.version for t, tracker in built.items()}
-    # each tracker on the observations it was trained on, unless --delays asks for others
-    delays_of = {canonical[t][0]: resolve_delays(tracker, delays)[0] for t, tracker in built.items()}
-    trackers = list(dict.fromkeys(cid for cid, _ in canonical.values()))
-    del built
+    # One model, one run: aliases (cross3d, cross3d:16x32) resolve to one canonical id and options
+    # (RunSpec.build), each on the observations it was trained on unless --delays asks for others.
+    specs: dict[tuple[str, str], RunSpec] = {}
+    versions: dict[str, str] = {}
+    order: list[str] = []
+    for text in trackers:
+        instance = make_tracker(text, **options)
+        for task_id in task_ids:
+            spec, _ = RunSpec.build(text, task_id, options, delays, instance=instance)
+            specs.setdefault((spec.tracker, task_id), spec)
+        versions[spec.tracker] = instance.version
+        order.append(spec.tracker)
+    trackers = list(dict.fromkeys(order))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs = [SweepRun(tracker, task) for task in task_ids for tracker in trackers]
     todo = []
     for run in runs:
-        path = finished_results(out, run.task, run.tracker, episodes, delays_of[run.tracker], opts[run.tracker],
-                                weights[run.tracker], versions[run.tracker])
+        spec = specs[(run.tracker, run.task)]
+        path = finished_results(out, spec, episodes, versions[run.tracker])
         if path is not None:
             run.status, run.json_path = "skipped", path
             log(f"{run.tracker} on {run.task}: already done ({path.name})")
             continue
         try:  # refuse to replace another configuration's file now, not after the run
-            spec = get_task_spec(run.task)
-            check_overwrite(out / f"{run_stem(run.task, run.tracker, opts[run.tracker], delays_of[run.tracker])}.json",
-                            configuration(spec.id, spec.version, run.tracker, opts[run.tracker], weights[run.tracker],
-                                          delays_of[run.tracker]), overwrite)
+            check_overwrite(spec.results_path(out), spec.configuration(), overwrite)
         except DoabenchError as exc:
             run.status, run.error = "failed", str(exc)
             _log_run(run, log)
@@ -185,11 +145,11 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
         todo.append(run)
     if engine == "local":
         for run in todo:
+            spec = specs[(run.tracker, run.task)]
             t0 = time.perf_counter()
             try:
-                results = execute_run(run.tracker, run.task, out, episodes, delays_of[run.tracker], opts[run.tracker],
-                                      keep_frames, env_options, progress=progress, requested_delays=delays)
-                _finish(run, results, out, opts[run.tracker], delays_of[run.tracker], overwrite)
+                results = execute_run(spec, out, episodes, keep_frames, env_options, progress=progress)
+                _finish(run, results, out, spec, overwrite)
             except OutputError:
                 raise  # a full disk or read-only folder fails every later run too: stop, journals kept
             except DoabenchError as exc:
@@ -197,8 +157,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
             run.seconds = time.perf_counter() - t0
             _log_run(run, log)
     elif todo:
-        _sweep_ray(todo, out, (episodes, delays_of, keep_frames, env_options), opts, ray_address, workers, log,
-                   overwrite, delays)
+        _sweep_ray(todo, out, specs, (episodes, keep_frames, env_options), ray_address, workers, log, overwrite)
     result = SweepResult(out, runs)
     if any(r.status in ("done", "skipped") for r in runs):
         from doabench.results.leaderboard import build_leaderboards, default_references, write_leaderboards
@@ -218,29 +177,26 @@ def _log_run(run: SweepRun, log: Callable[[str], None]) -> None:
         log(f"{run.tracker} on {run.task}: failed: {run.error}")
 
 
-def _sweep_ray(todo: list[SweepRun], out: Path, args: tuple, opts: dict[str, dict[str, Any]], address: str | None,
-               workers: int | None, log: Callable[[str], None], overwrite: bool = False,
-               requested_delays: str | None = None) -> None:
-    """``args``: ``(episodes, delays_of, keep_frames, env_options)`` of every run, ``delays_of``
-    the delay mode of each tracker's runs; ``opts``: each tracker's (canonical) options;
-    ``requested_delays``: the user's ``--delays`` (None: each tracker's trained mode)."""
-    episodes, delays_of, keep_frames, env_options = args
+def _sweep_ray(todo: list[SweepRun], out: Path, specs: dict[tuple[str, str], RunSpec], args: tuple,
+               address: str | None, workers: int | None, log: Callable[[str], None], overwrite: bool = False) -> None:
+    """``specs``: each run's :class:`RunSpec` by (tracker, task); ``args``: ``(episodes,
+    keep_frames, env_options)`` of every run."""
+    episodes, keep_frames, env_options = args
     from doabench.ray_support import ray_session, unwrap
 
     with ray_session(address, workers or (None if address else min(len(todo), 2))) as ray:
         remote = ray.remote(num_cpus=1)(execute_run)
         # The out folder is passed as an absolute path: on a cluster it must be a shared folder
         # (the workers keep the runs' journals there); the driver writes the results files.
-        refs = {remote.remote(run.tracker, run.task, str(out.resolve()), episodes, delays_of[run.tracker],
-                              opts[run.tracker], keep_frames, env_options, False, requested_delays): (run, time.perf_counter())
+        refs = {remote.remote(specs[(run.tracker, run.task)], str(out.resolve()), episodes, keep_frames,
+                              env_options): (run, time.perf_counter())
                 for run in todo}
         try:
             while refs:
                 ready, _ = ray.wait(list(refs), num_returns=1)
                 run, t0 = refs.pop(ready[0])
                 try:
-                    _finish(run, ray.get(ready[0]), out, options=opts[run.tracker], delays=delays_of[run.tracker],
-                            overwrite=overwrite)
+                    _finish(run, ray.get(ready[0]), out, specs[(run.tracker, run.task)], overwrite=overwrite)
                 except Exception as exc:
                     exc = unwrap(exc)
                     if not isinstance(exc, DoabenchError) or isinstance(exc, OutputError):

@@ -168,10 +168,9 @@ def _summaries(folder: Path) -> dict[str, tuple]:
 def test_sweep_runs_every_pair_resumes_and_builds_the_leaderboard(task_dir, tmp_path, capsys):
     out = tmp_path / "results"
     # One run was interrupted after its first episode: its journal is there and is resumed.
-    from doabench.runner import run_task
-    from doabench.sweep import partial_path_for
+    from doabench.runner import RunSpec, run_task
 
-    partial = partial_path_for(out, TASK, "srp-max:4x8")
+    partial = RunSpec.build("srp-max:4x8", TASK)[0].journal_path(out)  # where sweep and run keep it
     out.mkdir()
 
     def stop(i, record):

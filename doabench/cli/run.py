@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -41,56 +42,45 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from doabench.results.writer import (alias_files, check_overwrite, configuration, format_summary, results_stem,
-                                         write_results)
-    from doabench.runner import run_task
-    from doabench.trackers.base import resolve_delays
-    from doabench.trackers.registry import canonical_tracker, parse_options
-    from doabench.envs.registry import get_task_spec
-
     from doabench.cli.common import check_output_folder, make_checked_tracker, set_interrupt_note
-    from doabench.runner import run_lock
+    from doabench.envs.registry import get_task_spec
+    from doabench.errors import ConfigError
+    from doabench.results.writer import alias_files, check_overwrite, format_summary, write_results
+    from doabench.runner import RunSpec
     from doabench.runner.selection import parse_cells
+    from doabench.trackers.registry import parse_options
 
     check_output_folder(args.out)  # before the work, not after it
     use_threads(args)
     options = parse_options(args.tracker_opt)
     tracker = make_checked_tracker(args.tracker, options)  # before any file or folder is made
     # One model, one name: aliases (cross3d = cross3d:16x32, default-valued options) resolve to
-    # the canonical id and options before the file is named.
-    tracker_id, options = canonical_tracker(args.tracker, options, tracker)
-    delays, trained_delays = resolve_delays(tracker, args.delays)
-    if trained_delays is not None:
-        print(f"note: {tracker_id} was trained on {trained_delays} SRP delays; running with --delays {delays} "
-              "as asked (the results record both)", file=sys.stderr)
-    spec = get_task_spec(args.task)
-    if args.vad and spec.kind != "locata":
-        from doabench.errors import ConfigError
-
-        raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.id!r} is {spec.kind} (its VAD is the scene's)")
+    # the canonical id and options before the file is named (RunSpec.build).
+    spec, tracker = RunSpec.build(tracker, args.task, options, args.delays)
+    spec = dataclasses.replace(spec, given_id=args.tracker if args.tracker != spec.tracker else None)
+    if spec.trained_delays is not None:
+        print(f"note: {spec.tracker} was trained on {spec.trained_delays} SRP delays; running with --delays "
+              f"{spec.delays} as asked (the results record both)", file=sys.stderr)
+    if args.vad and get_task_spec(spec.task).kind != "locata":
+        raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.task!r} is {get_task_spec(spec.task).kind} "
+                          "(its VAD is the scene's)")
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
-    stem = results_stem(spec.id, tracker_id, options, delays, tracker.weights_hash())
     # Refused before the work: a file of another configuration under this name (never overwritten silently).
-    check_overwrite(out / f"{stem}.json", configuration(spec.id, spec.version, tracker_id, options,
-                                                       tracker.weights_hash(), delays), args.overwrite)
-    partial = out / f".{stem}.partial.jsonl"
+    check_overwrite(spec.results_path(out), spec.configuration(), args.overwrite)
+    partial = spec.journal_path(out)
     set_interrupt_note(args, lambda: _kept(args, partial))
     try:
-        with run_lock(partial):  # a second run with the same --out, task and tracker is refused
-            results = run_task(tracker, spec.id, episodes=args.episodes, cells=parse_cells(args.cells),
-                               device=args.device, delays=args.delays,
-                               tracker_options=options, partial_path=partial, progress=not args.quiet,
-                               keep_frames=not args.no_frames, lock=False, **corpus_kwargs(args))
-            results["tracker"]["id"] = tracker_id
-            if tracker_id != args.tracker:
-                results["tracker"]["given_id"] = args.tracker
-            json_path, csv_path = write_results(results, out, overwrite=args.overwrite)
-            aliases = alias_files(results, out)
-            for old in aliases:  # the same configuration written under an alias of the id
-                old.unlink(missing_ok=True)
-                old.with_suffix(".csv").unlink(missing_ok=True)
-            partial.unlink(missing_ok=True)
+        # a second run with the same --out, task and tracker is refused (the journal's lock)
+        results = spec.execute(tracker, out, episodes=args.episodes, cells=parse_cells(args.cells),
+                               device=args.device, progress=not args.quiet, keep_frames=not args.no_frames,
+                               **corpus_kwargs(args))
+        json_path, csv_path = write_results(results, out, overwrite=args.overwrite)
+        aliases = alias_files(results, out)
+        for old in aliases:  # the same configuration written under an alias of the id
+            old.unlink(missing_ok=True)
+            old.with_suffix(".csv").unlink(missing_ok=True)
+        partial.unlink(missing_ok=True)
     except BaseException:
         for folder in created:  # folders this run made and left empty go again
             try:
@@ -101,7 +91,7 @@ def main(args: argparse.Namespace) -> int:
     print(format_summary(results))
     print(f"wrote {json_path} and {csv_path}")
     if aliases:
-        print(f"replaced {', '.join(str(p) for p in aliases)} (the same configuration under an alias of {tracker_id})")
+        print(f"replaced {', '.join(str(p) for p in aliases)} (the same configuration under an alias of {spec.tracker})")
     return 0
 
 

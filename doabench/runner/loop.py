@@ -24,12 +24,11 @@ from doabench.errors import ConfigError, DoabenchError, TrackerError
 from doabench.geometry import normalize
 from doabench.results.files import to_json
 from doabench.results.provenance import environment
-from doabench.runner.journal import append_record, config_hash, load_journal, run_lock
+from doabench.runner.journal import append_record, config_hash, load_journal
 from doabench.runner.episode_cache import cache_episodes
 from doabench.runner.selection import select_episodes
 from doabench.runner.summary import build_results, episode_row, score
-from doabench.trackers.base import Tracker, resolve_delays
-from doabench.trackers.registry import canonical_tracker, make_tracker
+from doabench.trackers.base import Tracker
 
 
 def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
@@ -155,59 +154,35 @@ def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
             "tracker_s": tracker_s, "audio_s": episode.n_samples / episode.fs, "metadata": env.episode_metadata()}
 
 
-def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,
-             device: str | None = None, delays: str | None = None, tracker_options: dict | None = None,
-             partial_path: str | Path | None = None, progress: bool | Callable = True,
-             keep_frames: bool = True, lock: bool = True, cells: Sequence[str] | None = None,
-             **env_options: Any) -> dict[str, Any]:
-    """Run ``tracker`` on ``task`` and return the results dictionary (see docs/results-format).
-
-    ``episodes``: a count or explicit indices; default all of the task's episodes. A count on a
-    grid task is spread over its cells (:mod:`doabench.runner.selection`), else the first N.
-    ``cells``: on a grid task, only these cells (cell task ids).
-    ``partial_path``: a JSON-lines file of finished episodes for resuming; removed by the caller
-    once the final results are written. It is locked for the run (``lock=False``: the caller holds
-    :func:`run_lock` already). ``wall_time_s`` adds up every invocation that contributed episodes.
-    """
-    if partial_path and lock:
-        with run_lock(partial_path):
-            return run_task(tracker, task, episodes, device, delays, tracker_options, partial_path, progress,
-                            keep_frames, lock=False, cells=cells, **env_options)
-    if isinstance(tracker, str):
-        tracker_text = tracker
-        tracker = make_tracker(tracker, **(tracker_options or {}))
-    else:
-        tracker_text = tracker.name
+def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
+                 episodes: int | Sequence[int] | None, cells: Sequence[str] | None, device: str | None,
+                 progress: bool | Callable, keep_frames: bool, env_options: dict[str, Any]) -> dict[str, Any]:
+    """Run the :class:`~doabench.runner.spec.RunSpec` ``spec`` with ``tracker`` (its instance) and
+    return the results dictionary. ``partial_path``: the resume journal (None: no journal), held
+    locked by the caller. ``wall_time_s`` adds up every invocation that contributed episodes."""
     check_trained(tracker, keyword=True)
-    try:  # aliases name one model (doabench.trackers.registry.canonical_tracker)
-        tracker_text, tracker_options = canonical_tracker(tracker_text, tracker_options, tracker)
-    except DoabenchError:  # an instance of an unregistered class keeps its own name
-        pass
-    spec = get_task_spec(task)
-    # The observations the tracker was trained on unless the caller asks for others on purpose.
-    delays, trained_delays = resolve_delays(tracker, delays)
+    task = get_task_spec(spec.task)
     provenance = environment(device)  # taken before the work: the code that runs is the code recorded
     wall_start = time.perf_counter()
-    env = make_env_for(tracker, task, device=device, delays=delays, **env_options)
+    env = make_env_for(tracker, task.id, device=device, delays=spec.delays, **env_options)
     cache_episodes(env)  # DOABENCH_EPISODE_CACHE: several trackers, one simulation per episode
-    indices, selection = select_episodes(spec, env.n_episodes, episodes, cells)
-    config = {"task": spec.id, "task_version": spec.version, "tracker": tracker_text,
-              "options": tracker_options or {}, "delays": delays, "indices": indices,
-              "weights": tracker.weights_hash(), "env": {k: str(v) for k, v in env_options.items()}}
-    done = load_journal(partial_path, config_hash(config))
+    indices, selection = select_episodes(task, env.n_episodes, episodes, cells)
+    done = load_journal(partial_path, config_hash(spec.journal_config(indices, env_options)))
+    earlier = set(done)  # episodes an earlier invocation journalled
     try:
-        records = _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep_frames, wall_start)
+        records = _run_indices(env, tracker, task, indices, done, partial_path, progress, keep_frames, wall_start)
     except BaseException:
-        if partial_path and not done:  # nothing finished: leave no journal behind
+        if partial_path and not done:  # nothing finished, now or before: leave no journal behind
             Path(partial_path).unlink(missing_ok=True)
         raise
     # This invocation's wall time plus that of the episodes earlier invocations journalled.
-    earlier = sum(float(r.get("wall_s", 0.0)) for r in records if not r.pop("_new", False))
-    wall_s = earlier + (time.perf_counter() - wall_start)
-    results = build_results(spec, tracker, tracker_text, tracker_options, env, records, wall_s, provenance, delays,
-                            selection)
-    if trained_delays is not None:
-        results["features"]["trained_delays"] = trained_delays
+    wall_s = sum(float(done[i].get("wall_s", 0.0)) for i in indices if i in earlier) + (time.perf_counter() - wall_start)
+    results = build_results(task, tracker, spec.tracker, dict(spec.options), env, records, wall_s, provenance,
+                            spec.delays, selection)
+    if spec.trained_delays is not None:
+        results["features"]["trained_delays"] = spec.trained_delays
+    if spec.given_id is not None:
+        results["tracker"]["given_id"] = spec.given_id
     return results
 
 
@@ -237,7 +212,6 @@ def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep
         record = json.loads(to_json(record, indent=None))
         if partial_path:
             append_record(partial_path, record)
-        record["_new"] = True
         done[index] = record
         if bar is not None:
             bar.update(1)

@@ -1,0 +1,121 @@
+"""One run's identity as a value: :class:`RunSpec`.
+
+A run is a tracker configuration (its canonical id, options and weights) on a task (id and
+version) with the SRP delay mode its observations use. Everything that names or recognises a run
+derives from this one value: the results file stem, the configuration two files are compared by,
+the resume journal and its lock, and the hash that heads the journal. ``doabench run``, ``doabench
+sweep`` and the Python API (:func:`doabench.run`) all build one and call :meth:`RunSpec.execute`,
+so the three agree on every name by construction.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+from doabench.envs.registry import get_task_spec
+from doabench.results.writer import configuration, results_stem
+from doabench.runner.journal import run_lock
+from doabench.runner.loop import execute_spec
+from doabench.trackers.base import Tracker, resolve_delays
+from doabench.trackers.registry import canonical_tracker, make_tracker
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """``tracker`` is the canonical id (aliases resolved), ``options`` the canonical options,
+    ``delays`` the mode the run uses; ``trained_delays`` is set only when that mode is not the one
+    the weights were trained on (asked for on purpose), ``given_id`` only when the user typed an
+    alias of ``tracker``."""
+
+    task: str
+    task_version: int
+    tracker: str
+    options: Mapping[str, Any] = field(default_factory=dict)
+    weights_hash: str | None = None
+    delays: str = "nearest"
+    requested_delays: str | None = None
+    trained_delays: str | None = None
+    given_id: str | None = None
+
+    @classmethod
+    def build(cls, tracker: str | Tracker, task: str, options: Mapping[str, Any] | None = None,
+              delays: str | None = None, instance: Tracker | None = None) -> tuple["RunSpec", Tracker]:
+        """The spec of running ``tracker`` (its ``--tracker`` text, or an instance) with ``options``
+        on ``task``, and the tracker instance (``instance``, or built here from the text).
+        ``delays`` None: the mode the tracker was trained on."""
+        options = dict(options or {})
+        if isinstance(tracker, str):
+            text, instance = tracker, instance if instance is not None else make_tracker(tracker, **options)
+        else:
+            text, instance = tracker.name, tracker
+        try:  # aliases name one model (doabench.trackers.registry.canonical_tracker)
+            tracker_id, options = canonical_tracker(text, options, instance)
+        except Exception:  # an instance of an unregistered class keeps its own name
+            tracker_id = text
+        used, trained = resolve_delays(instance, delays)
+        spec = get_task_spec(task)
+        return cls(task=spec.id, task_version=spec.version, tracker=tracker_id, options=options,
+                   weights_hash=instance.weights_hash(), delays=used, requested_delays=delays,
+                   trained_delays=trained, given_id=text if text != tracker_id else None), instance
+
+    @property
+    def stem(self) -> str:
+        """The results file stem: ``sim-demo__srp-max_16x32``, ``..__1a2b3c4d`` with options."""
+        return results_stem(self.task, self.tracker, self.options, self.delays, self.weights_hash)
+
+    def configuration(self) -> dict[str, Any]:
+        """What makes two results files the same configuration (results.writer.configuration)."""
+        return configuration(self.task, self.task_version, self.tracker, self.options, self.weights_hash, self.delays)
+
+    def results_path(self, out: str | Path) -> Path:
+        return Path(out) / f"{self.stem}.json"
+
+    def make_tracker(self) -> Tracker:
+        """The tracker of this spec, built again from its canonical id and options (what a worker
+        process that received only the spec runs)."""
+        return make_tracker(self.tracker, **dict(self.options))
+
+    def journal_path(self, out: str | Path) -> Path:
+        """The resume journal of this run in ``out`` (locked while the run goes)."""
+        return Path(out) / f".{self.stem}.partial.jsonl"
+
+    def journal_config(self, indices: Sequence[int], env_options: Mapping[str, Any]) -> dict[str, Any]:
+        """What heads the journal: a journal of another configuration or episode list is not resumed."""
+        return {"task": self.task, "task_version": self.task_version, "tracker": self.tracker,
+                "options": dict(self.options), "delays": self.delays, "indices": list(indices),
+                "weights": self.weights_hash, "env": {k: str(v) for k, v in env_options.items()}}
+
+    def execute(self, tracker: Tracker, out: str | Path | None = None, *, episodes: int | Sequence[int] | None = None,
+                cells: Sequence[str] | None = None, device: str | None = None, progress: bool | Callable = True,
+                keep_frames: bool = True, **env_options: Any) -> dict[str, Any]:
+        """Run it (``tracker``: the instance :meth:`build` returned) and return the results
+        dictionary; with ``out``, resumably through :meth:`journal_path`, which is locked so that a
+        second process on the same run is refused."""
+        if out is None:
+            return execute_spec(self, tracker, None, episodes, cells, device, progress, keep_frames, env_options)
+        Path(out).mkdir(parents=True, exist_ok=True)
+        partial = self.journal_path(out)
+        with run_lock(partial):
+            return execute_spec(self, tracker, partial, episodes, cells, device, progress, keep_frames, env_options)
+
+
+def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,
+             device: str | None = None, delays: str | None = None, tracker_options: dict | None = None,
+             partial_path: str | Path | None = None, progress: bool | Callable = True,
+             keep_frames: bool = True, lock: bool = True, cells: Sequence[str] | None = None,
+             **env_options: Any) -> dict[str, Any]:
+    """Run ``tracker`` on ``task`` and return the results dictionary (see docs/results-format).
+
+    ``episodes``: a count or explicit indices; default all of the task's episodes. A count on a
+    grid task is spread over its cells (:mod:`doabench.runner.selection`), else the first N.
+    ``cells``: on a grid task, only these cells (cell task ids). ``delays``: None runs the tracker
+    on the SRP delays it was trained on. ``partial_path``: a JSON-lines journal of finished
+    episodes for resuming (any path; :meth:`RunSpec.execute` with an ``out`` folder names it),
+    removed by the caller once the results are written; locked for the run unless ``lock=False``
+    (the caller holds :func:`run_lock` already)."""
+    spec, instance = RunSpec.build(tracker, task, tracker_options, delays)
+    if partial_path is None or not lock:
+        return execute_spec(spec, instance, partial_path, episodes, cells, device, progress, keep_frames, env_options)
+    with run_lock(partial_path):
+        return execute_spec(spec, instance, partial_path, episodes, cells, device, progress, keep_frames, env_options)
