@@ -220,12 +220,15 @@ def compare_block(files: list[str], root: Path = ROOT) -> str:
     cmp._distinct_labels(runs)
     rows = []
     for other in runs[1:]:
-        c = cmp.compare(runs[0], other, only=("rmsae_all", "rmsae_nonsilent"))
+        # two tasks rendering the same scenes (sim-walk and sim-walk-pra) pair by scene seed
+        by_seed = runs[0].task.get("id") != other.task.get("id")
+        c = cmp.compare(runs[0], other, only=("rmsae_all", "rmsae_nonsilent"), by_seed=by_seed)
         pooled = {r.metric.key: r for r in c.pooled}
         a, v = pooled["rmsae_all"], pooled["rmsae_nonsilent"]
         rows.append([f"`{runs[0].label}` − `{other.label}`", f"{cmp._diff_text(a)}, {a.verdict}",
                      f"{cmp._diff_text(v)}, {v.verdict}", cmp.cell_summary(c) or "—"])
-    command = "doabench compare " + " ".join(files)
+    by_seed = any(r.task.get("id") != runs[0].task.get("id") for r in runs[1:])
+    command = "doabench compare " + " ".join(files) + (" --by-seed" if by_seed else "")
     return "\n".join(_table(["difference", "RMSAE all frames (deg) [95% CI]", "RMSAE voice-active (deg) [95% CI]",
                              "per cell (RMSAE all frames)"], rows) + ["", f"`{command}`"]) + "\n"
 
@@ -246,17 +249,51 @@ def results_block(files: list[str], root: Path = ROOT) -> str:
                              "results file"], rows)) + "\n"
 
 
-_BLOCK = re.compile(r"(<!-- (leaderboard|compare|results): ([^>]*?) -->\n)(.*?)(<!-- end of \2 -->)", re.S)
+def motion_block(files: list[str], root: Path = ROOT) -> str:
+    """Moving-talker results in brief: per results file the pooled RMSAE (all frames and
+    voice-active), the tracking lag and the voice-active RMSAE per angular-speed band of the truth,
+    then the voice-active RMSAE per T60 of the grid's cells (pooled over the cells of each T60)."""
+    from doabench.metrics import SPEED_BANDS, pooled_from_rows
+
+    runs = [json.loads((root / f).read_text()) for f in files]
+    bands = [label for label, _, _ in SPEED_BANDS]
+    rows, t60_rows, t60s = [], [], []
+    for r in runs:
+        s = r["summary"]
+        lag = "-" if s.get("lag_s") is None else f"{s['lag_s']:.2f}"
+        speed = s.get("speed_bands") or {}
+        rows.append([f"`{r['tracker'].get('id')}`", f"{s['rmsae_all']:.2f}", f"{s['rmsae_nonsilent']:.2f}", lag]
+                    + [f"{speed[b]['rmsae']:.1f}" if b in speed and speed[b]["n_frames"] else "-" for b in bands])
+        by_t60: dict[float, list[dict[str, Any]]] = {}
+        for row in r["episodes"]:
+            by_t60.setdefault(float(row["t60"]), []).append(row)
+        t60s = sorted(by_t60)
+        t60_rows.append([f"`{r['tracker'].get('id')}`"] + [
+            f"{pooled_from_rows(by_t60[t])['rmsae_all']:.2f} / {pooled_from_rows(by_t60[t])['rmsae_nonsilent']:.2f}"
+            for t in t60s])
+    task = runs[0]["task"]
+    lines = _table(["tracker", "RMSAE all frames", "RMSAE voice-active", "lag [s]"]
+                   + [f"voice-active, {b} deg/s" for b in bands], rows)
+    lines += ["", f"`{task['id']}` v{task.get('version')}, {task.get('episodes_run')} episodes; degrees, pooled. "
+              "Lag: the delay of the truth that fits the estimates best (0-2 s, docs/concepts.md); speed bands: "
+              "the truth's angular speed seen from the array.", ""]
+    lines += _table(["tracker"] + [f"T60 {t:g} s: all / voice-active" for t in t60s], t60_rows)
+    return "\n".join(lines) + "\n"
+
+
+_BLOCK = re.compile(r"(<!-- (leaderboard|compare|results|motion): ([^>]*?) -->\n)(.*?)(<!-- end of \2 -->)", re.S)
 
 
 def with_blocks(page: str, root: Path = ROOT, link: str = "leaderboards/") -> str:
-    """``page`` with every ``<!-- leaderboard: TASK -->``, ``<!-- compare: A B ... -->`` and
-    ``<!-- results: A B ... -->`` block (each closed by ``<!-- end of leaderboard -->``, ``<!-- end of
+    """``page`` with every ``<!-- leaderboard: TASK -->``, ``<!-- compare: A B ... -->``,
+    ``<!-- motion: A B ... -->`` and ``<!-- results: A B ... -->`` block (each closed by ``<!-- end of leaderboard -->``, ``<!-- end of
     compare -->``, ``<!-- end of results -->``) filled in."""
     def fill(m: re.Match) -> str:
         kind, arg = m.group(2), m.group(3).split()
         if kind == "leaderboard":
             body = "\n".join(brief_table(arg[0], root, link=link)) + "\n"
+        elif kind == "motion":
+            body = motion_block(arg, root)
         else:
             body = compare_block(arg, root) if kind == "compare" else results_block(arg, root)
         return m.group(1) + body + m.group(5)
