@@ -214,3 +214,17 @@ def test_run_sweep_and_leaderboard_default_to_the_ignored_runs_folder():
             probe = f"{folder}/x.json"
             ignored = subprocess.run(["git", "check-ignore", probe], cwd=ROOT, capture_output=True, text=True)
             assert ignored.stdout.strip() == probe
+
+
+def test_a_partial_rerun_never_replaces_a_complete_run(tmp_path, capsys):
+    from doabench.cli.main import main
+
+    out = tmp_path / "r"
+    quick = ["--task", "sim-demo", "--tracker", "srp-max:4x8", "--out", str(out), "--quiet", "--no-frames"]
+    assert main(["run", *quick]) == 0
+    json_path = out / "sim-demo__srp-max_4x8.json"
+    before = json_path.read_bytes()
+    assert main(["run", *quick, "--episodes", "1"]) == 2
+    assert "holds a complete run of this configuration and this run is partial" in capsys.readouterr().err
+    assert json_path.read_bytes() == before
+    assert main(["run", *quick, "--episodes", "1", "--overwrite"]) == 0  # on purpose

@@ -67,7 +67,9 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
     # Refused before the work: a file of another configuration under this name (never overwritten silently).
-    check_overwrite(spec.results_path(out), spec.configuration(), args.overwrite)
+    total = get_task_spec(spec.task).episodes
+    is_partial = bool(args.cells) or (args.episodes is not None and args.episodes < total)
+    check_overwrite(spec.results_path(out), spec.configuration(), args.overwrite, partial=is_partial)
     partial = spec.journal_path(out)
     set_interrupt_note(args, lambda: _kept(args, partial))
     try:

@@ -71,20 +71,28 @@ def _describe_difference(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
     return ", ".join(f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in keys) or "unknown difference"
 
 
-def check_overwrite(path: str | Path, config: Mapping[str, Any], overwrite: bool = False) -> None:
+def check_overwrite(path: str | Path, config: Mapping[str, Any], overwrite: bool = False,
+                    partial: bool = False) -> None:
     """Refuse to replace a results file that holds a different configuration (options, weights,
-    task version, delays) unless ``overwrite``; the same configuration is replaced (a rerun)."""
+    task version, delays) unless ``overwrite``; the same configuration is replaced (a rerun), but
+    not a complete run by a ``partial`` one (some episodes or cells only)."""
     path = Path(path)
     if overwrite or not path.exists():
         return
     try:
-        old = results_configuration(json.loads(path.read_text()))
+        data = json.loads(path.read_text())
+        old = results_configuration(data)
+        task = data.get("task") or {}
+        old_complete = bool(task.get("complete", task.get("episodes_run") == task.get("episodes_total")))
     except (OSError, ValueError, AttributeError, TypeError):
         raise InputError(f"{path} exists and is not a readable results file; move it away or pass --overwrite "
                          "(Python: overwrite=True)") from None
     if dict(old) != dict(config):
         raise InputError(f"{path} holds a different configuration ({_describe_difference(old, config)}); "
                          "pass --overwrite (Python: overwrite=True) to replace it, or choose another --out")
+    if partial and old_complete:
+        raise InputError(f"{path} holds a complete run of this configuration and this run is partial (some episodes "
+                         "or cells): pass --overwrite (Python: overwrite=True) to replace it, or choose another --out")
 
 
 def write_results(results: dict[str, Any], out_dir: str | Path, overwrite: bool = False) -> tuple[Path, Path]:
@@ -93,7 +101,8 @@ def write_results(results: dict[str, Any], out_dir: str | Path, overwrite: bool 
     is refused (:func:`check_overwrite`) unless ``overwrite``."""
     out_dir = Path(out_dir)
     path = results_path(results, out_dir)
-    check_overwrite(path, results_configuration(results), overwrite)
+    task = results.get("task") or {}
+    check_overwrite(path, results_configuration(results), overwrite, partial=not task.get("complete", True))
     stem = path.stem
     json_path = write_json(out_dir / f"{stem}.json", results)
     csv_path = out_dir / f"{stem}.csv"
