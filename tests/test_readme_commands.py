@@ -39,7 +39,7 @@ def test_demo_writes_only_under_an_ignored_folder() -> None:
 
     out = _demo_out()
     assert not out.is_absolute() and out.parts[0] != "results"
-    probe = out / "sim-demo__srp-max.json"
+    probe = out / "sim-demo__srp-max_16x32.json"
     assert _git("check-ignore", str(probe)).strip() == str(probe)  # git-ignored
     # Run the demo's own command (one episode) into a fresh sibling of its folder (same ignore
     # rule; a user's runs/demo/ is left alone) and check that no tracked file changed.

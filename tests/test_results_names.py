@@ -68,9 +68,9 @@ def test_a_different_configuration_under_the_same_name_is_refused(tmp_path: Path
 
 
 def test_python_writer_refuses_another_configuration(tmp_path: Path) -> None:
-    results = json.loads((ROOT / "results" / "sim-demo__srp-max.json").read_text())
+    results = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
     json_path, _ = write_results(results, tmp_path)
-    assert json_path.name == "sim-demo__srp-max.json"
+    assert json_path.name == "sim-demo__srp-max_16x32.json"
     write_results(results, tmp_path)  # same configuration: fine
     other = json.loads(json.dumps(results))
     other["tracker"]["weights_hash"] = "c" * 64
