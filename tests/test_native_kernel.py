@@ -1,6 +1,7 @@
 """The compiled image-source kernel against an independent float64 evaluation and the torch path."""
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shutil
@@ -33,14 +34,10 @@ def _scene(t60=0.5, n_points=5):
 
 def _render(images, src, mics, n_out, use_kernel: bool, out=None):
     lib = native.library()
-    saved = dict(native._state)
     try:
-        if not use_kernel:
-            native._state.update(lib=None, why="test")
-        return engine.render_images(images, torch.tensor(src), torch.tensor(mics), FS, n_out, out=out)
+        with contextlib.nullcontext() if use_kernel else native.disabled("test"):
+            return engine.render_images(images, torch.tensor(src), torch.tensor(mics), FS, n_out, out=out)
     finally:
-        native._state.clear()
-        native._state.update(saved)
         assert native.library() is lib
 
 
@@ -115,20 +112,22 @@ def test_simulations_agree_between_kernel_and_torch_path():
     x = np.random.default_rng(0).standard_normal(8000)
     sim = get_simulator("builtin")
     y_c = sim.simulate(room, src, mics, x, FS, seed=5)
-    saved = dict(native._state)
-    try:
-        native._state.update(lib=None, why="test")
+    with native.disabled("test"):
         assert sim.versions()["image_kernel"] == "torch"
         y_t = sim.simulate(room, src, mics, x, FS, seed=5)
-    finally:
-        native._state.clear()
-        native._state.update(saved)
     # two approximations of the same exact model (see the test above)
     assert np.linalg.norm(y_c - y_t) / np.linalg.norm(y_t) < 1e-2
 
 
-def test_without_a_compiler_the_torch_path_runs(monkeypatch):
-    monkeypatch.setattr(native, "_state", {})
+@pytest.fixture
+def reloaded_kernel():
+    """The kernel loaded afresh in the test (which may change how), and again after it."""
+    native.reload()
+    yield
+    native.reload()
+
+
+def test_without_a_compiler_the_torch_path_runs(monkeypatch, reloaded_kernel):
     monkeypatch.setattr(native, "_compiler", lambda: None)
     assert native.library() is None and "no C compiler" in native.unavailable_reason()
     assert engine.image_kernel("cpu") == "torch"
@@ -137,15 +136,13 @@ def test_without_a_compiler_the_torch_path_runs(monkeypatch):
     assert h.shape[:2] == (2, 3) and np.all(np.isfinite(h))
 
 
-def test_native_can_be_turned_off(monkeypatch):
-    monkeypatch.setattr(native, "_state", {})
+def test_native_can_be_turned_off(monkeypatch, reloaded_kernel):
     monkeypatch.setenv("DOABENCH_NATIVE", "0")
     assert native.kernel_name() == "torch" and "DOABENCH_NATIVE" in native.unavailable_reason()
 
 
 @needs_kernel
-def test_a_failed_build_falls_back(monkeypatch, tmp_path):
-    monkeypatch.setattr(native, "_state", {})
+def test_a_failed_build_falls_back(monkeypatch, tmp_path, reloaded_kernel):
     monkeypatch.setenv("DOABENCH_CACHE", str(tmp_path))
     monkeypatch.setattr(native, "FLAGS", ["--no-such-flag-xyz", *native.FLAGS])
     assert native.library() is None and "failed" in native.unavailable_reason()
@@ -170,7 +167,7 @@ def test_a_damaged_cached_kernel_is_rebuilt(tmp_path):
 
 
 @needs_kernel
-def test_a_read_only_cache_folder_falls_back_to_a_temp_folder(monkeypatch, tmp_path):
+def test_a_read_only_cache_folder_falls_back_to_a_temp_folder(monkeypatch, tmp_path, reloaded_kernel):
     locked = tmp_path / "locked"
     build = native._build
 
@@ -179,7 +176,6 @@ def test_a_read_only_cache_folder_falls_back_to_a_temp_folder(monkeypatch, tmp_p
             raise PermissionError(13, "Permission denied", str(target.parent))
         return build(cc, source, target)
 
-    monkeypatch.setattr(native, "_state", {})
     monkeypatch.setenv("DOABENCH_CACHE", str(locked))
     monkeypatch.setattr(native, "_build", refuse_locked)
     monkeypatch.setattr(native.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
@@ -222,13 +218,8 @@ def test_accelerator_work_sizes_give_the_same_simulation(monkeypatch):
     row = len(mics) * convolution.trajectory_fft_size(len(x), len(src), layout.n_early)
     assert convolution._OLA_CHUNK_ELEMENTS // row < len(src) <= convolution._OLA_CHUNK_ELEMENTS_CUDA // row
     sim = get_simulator("builtin")
-    saved = dict(native._state)
-    try:
-        native._state.update(lib=None, why="test")  # the torch path, which CUDA runs
+    with native.disabled("test"):  # the torch path, which CUDA runs
         cpu_sized = sim.simulate(room, src, mics, x, FS, seed=5)
         monkeypatch.setattr(engine, "work_elements", lambda device, cpu, accelerator: accelerator)
         accelerator_sized = sim.simulate(room, src, mics, x, FS, seed=5)
-    finally:
-        native._state.clear()
-        native._state.update(saved)
     assert np.linalg.norm(accelerator_sized - cpu_sized) / np.linalg.norm(cpu_sized) < 1e-5

@@ -18,6 +18,7 @@ atomically (several worker processes may build it at once).
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import os
@@ -28,6 +29,7 @@ import tempfile
 import threading
 from importlib import resources
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -123,6 +125,29 @@ def library():
         if "lib" not in _state:
             _state["lib"], _state["why"] = _load()
         return _state["lib"]
+
+
+@contextlib.contextmanager
+def disabled(reason: str = "turned off for this block") -> Iterator[None]:
+    """Run the block on the torch path, as ``DOABENCH_NATIVE=0`` does, then restore the kernel that
+    was loaded (to compare the two paths in one process)."""
+    library()
+    with _lock:
+        saved = dict(_state)
+        _state.update(lib=None, why=reason)
+    try:
+        yield
+    finally:
+        with _lock:
+            _state.clear()
+            _state.update(saved)
+
+
+def reload() -> None:
+    """Forget the loaded kernel, so that the next use reads ``DOABENCH_NATIVE`` and builds or loads
+    the kernel again."""
+    with _lock:
+        _state.clear()
 
 
 def unavailable_reason() -> str:
