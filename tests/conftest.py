@@ -12,6 +12,25 @@ QUICK_SCENE = {"duration_s": 3.0, "n_points": 24}
 TINY_SCENE = {"duration_s": 1.5, "n_points": 12}
 
 
+def tiny_task_toml(task_id: str, episodes: int, base_seed: int, version: int = 1, extra_scene: str = "") -> str:
+    """A task spec of 1 s scenes with the embedded speech: the smallest simulated task the dataset,
+    scale-out, output and interrupt tests build on (``extra_scene``: more ``[scene]`` lines)."""
+    return f"""
+id = "{task_id}"
+version = {version}
+kind = "simulated"
+episodes = {episodes}
+base_seed = {base_seed}
+[speech]
+corpus = "embedded"
+[scene]
+duration_s = 1.0
+n_points = 8
+t60 = [0.2, 0.3]
+room_max = [5.0, 5.0, 3.0]
+{extra_scene}"""
+
+
 @pytest.fixture
 def librispeech_root() -> Path:
     if not (SHARED_LIBRISPEECH / "test-other").is_dir():

@@ -23,24 +23,11 @@ from doabench.datasets.schema import SCHEMA, parse_features, parse_shard, shard_
 from doabench.envs.env import DoaEnv
 from doabench.errors import ConfigError, InputError, NotFoundError
 
-from conftest import ROOT
+from conftest import ROOT, tiny_task_toml
 
 TASK = "ds-tiny-test"
 # 1 s scenes in small, mildly reverberant rooms: about 0.3 s of simulation per episode.
-TASK_TOML = f"""
-id = "{TASK}"
-version = 2
-kind = "simulated"
-episodes = 4
-base_seed = 777
-[speech]
-corpus = "embedded"
-[scene]
-duration_s = 1.0
-n_points = 8
-t60 = [0.2, 0.3]
-room_max = [5.0, 5.0, 3.0]
-"""
+TASK_TOML = tiny_task_toml(TASK, episodes=4, base_seed=777, version=2)
 FEATURES = "srp:4x8,srp:8x16,gcc,audio"
 
 

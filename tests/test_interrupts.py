@@ -20,7 +20,7 @@ import pytest
 
 from doabench.cli.main import main
 
-from conftest import ROOT
+from conftest import ROOT, tiny_task_toml
 
 # A causal SRP tracker slow enough (about a second per sim-demo episode) to be caught mid-run.
 SLOW_TRACKER = '''
@@ -37,20 +37,7 @@ class SlowMax(SrpMaxTracker):
 '''
 TRACKER = "slowtracker:SlowMax:4x8"
 
-DATASET_TASK = """
-id = "int-tiny-test"
-version = 1
-kind = "simulated"
-episodes = 6
-base_seed = 41
-[speech]
-corpus = "embedded"
-[scene]
-duration_s = 1.0
-n_points = 8
-t60 = [0.2, 0.3]
-room_max = [5.0, 5.0, 3.0]
-"""
+DATASET_TASK = tiny_task_toml("int-tiny-test", episodes=6, base_seed=41)
 
 
 @pytest.fixture(scope="module")

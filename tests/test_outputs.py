@@ -26,7 +26,7 @@ from doabench.cli.main import main
 from doabench.errors import OutputError
 from doabench.results.files import atomic_path, resolve_output, write_text
 
-from conftest import ROOT
+from conftest import ROOT, tiny_task_toml
 
 RUN = ["--tracker", "srp-max:4x8", "--task", "sim-demo", "--episodes", "2", "--quiet"]
 
@@ -302,20 +302,7 @@ def test_full_disk_run_stops_cleanly_and_resumes_to_the_same_result(tmp_path, ca
         _no_debris(out)
 
 
-TASK_TOML = """
-id = "out-tiny-test"
-version = 1
-kind = "simulated"
-episodes = 3
-base_seed = 31
-[speech]
-corpus = "embedded"
-[scene]
-duration_s = 1.0
-n_points = 8
-t60 = [0.2, 0.3]
-room_max = [5.0, 5.0, 3.0]
-"""
+TASK_TOML = tiny_task_toml("out-tiny-test", episodes=3, base_seed=31)
 
 
 def _episodes(path: Path) -> list:

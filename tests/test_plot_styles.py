@@ -3,6 +3,8 @@ trackers there are, labels that carry the tracker's options, legends clear of th
 RMSAE-by-angular-speed plot, and help texts that say what the plots do."""
 from __future__ import annotations
 
+from doabench.results.files import load_results
+
 import copy
 import json
 from pathlib import Path
@@ -147,7 +149,7 @@ def test_rmsae_vs_speed_draws_one_line_per_tracker(tmp_path: Path, capsys) -> No
     for k, tracker in enumerate(["srp-max:8x16", "srp-kalman:32x64", "srp-max:16x32"]):
         bands = {"<5": 5.0 + k, "5-15": 8.0 + k, "15-30": 12.0 + k, ">30": None if k == 0 else 25.0 + k}
         files.append(_write(tmp_path / f"{k}.json", _with_speed_bands(_results(tracker, 10.0), bands)))
-    runs = [plots.load_results(f) for f in files]
+    runs = [load_results(f) for f in files]
     fig = plots.rmsae_vs_speed_figure(runs)
     ax = fig.axes[0]
     lines = ax.get_lines()

@@ -12,6 +12,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from conftest import tiny_task_toml
 import torch
 
 import doabench
@@ -20,21 +21,6 @@ from doabench.datasets import make_dataset
 from doabench.datasets.generate import parts_dir
 
 TASK, TASK_B = "scaleout-tiny", "scaleout-tiny-b"
-TOML = """
-id = "{id}"
-version = 1
-kind = "simulated"
-episodes = {n}
-base_seed = {seed}
-[speech]
-corpus = "embedded"
-[scene]
-duration_s = 1.0
-n_points = 8
-t60 = [0.2, 0.3]
-room_max = [5.0, 5.0, 3.0]
-pause_s = [0.1, 0.3]
-"""
 FEATURES = "srp:4x8,gcc,audio"
 RAY_TIMEOUT_S = 120  # a local cluster that hangs fails the test instead of the CI run
 
@@ -57,7 +43,7 @@ def deadline(seconds: int, what: str):
 def task_dir(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("tasks")
     for task_id, n, seed in ((TASK, 4, 321), (TASK_B, 2, 654)):
-        (folder / f"{task_id}.toml").write_text(TOML.format(id=task_id, n=n, seed=seed))
+        (folder / f"{task_id}.toml").write_text(tiny_task_toml(task_id, n, seed, extra_scene="pause_s = [0.1, 0.3]\n"))
         doabench.register_task(folder / f"{task_id}.toml")
     return folder
 

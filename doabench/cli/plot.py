@@ -85,14 +85,16 @@ def _done(paths) -> int:
 
 
 def rmsae_vs_t60(args: argparse.Namespace) -> int:
-    from doabench.results.plots import load_results, plot_rmsae_vs_t60
+    from doabench.results.files import load_results
+    from doabench.results.plots import plot_rmsae_vs_t60
 
     runs = [load_results(path) for path in args.results]
     return _done(plot_rmsae_vs_t60(runs, args.out, args.snr, args.metric, args.title))
 
 
 def rmsae_vs_speed(args: argparse.Namespace) -> int:
-    from doabench.results.plots import load_results, plot_rmsae_vs_speed
+    from doabench.results.files import load_results
+    from doabench.results.plots import plot_rmsae_vs_speed
 
     runs = [load_results(path) for path in args.results]
     return _done(plot_rmsae_vs_speed(runs, args.out, args.title, sources=args.results))
@@ -100,7 +102,8 @@ def rmsae_vs_speed(args: argparse.Namespace) -> int:
 
 def episode(args: argparse.Namespace) -> int:
     from doabench.geometry import parse_resolution
-    from doabench.results.plots import episode_frames, load_results, plot_episode, render_episode
+    from doabench.results.files import load_results
+    from doabench.results.plots import episode_frames, plot_episode, render_episode
 
     import numpy as np
 

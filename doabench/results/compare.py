@@ -33,6 +33,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from doabench.errors import InputError
+from doabench.results.files import load_results
 from doabench.metrics import LAG_MAX_S, LAG_STEP_S, STATIC_SPEED_DEG_S, THRESHOLDS_DEG, lag_grid, score_frames
 
 N_RESAMPLES = 2000
@@ -64,16 +65,7 @@ class Run:
 def load_run(path: str | Path) -> Run:
     """A results JSON written by ``doabench run``; InputError (one line) otherwise."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"results file {path} does not exist") from None
-    except IsADirectoryError:
-        raise InputError(f"{path} is a folder; give results JSON files") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path} is not valid JSON ({exc})") from None
-    if not (isinstance(data, dict) and str(data.get("schema", "")).startswith("doabench.results/")):
-        raise InputError(f"{path} is not a doabench results file (no doabench.results schema)")
+    data = load_results(path)
     if not data.get("episodes"):
         raise InputError(f"{path} has no per-episode rows to pair")
     return Run(path, data, run_label(data))

@@ -56,20 +56,6 @@ def save_figure(fig, out: str | Path, dpi: int = 110) -> list[Path]:
     return paths
 
 
-def load_results(path: str | Path) -> dict[str, Any]:
-    """A results JSON written by ``doabench run``; InputError with the reason otherwise."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"results file {path} does not exist") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path} is not valid JSON ({exc})") from None
-    if not (isinstance(data, dict) and str(data.get("schema", "")).startswith("doabench.results/")):
-        raise InputError(f"{path} is not a doabench results file (no doabench.results schema)")
-    return data
-
-
 def _option_text(key: str, value: Any) -> str:
     if key == "weights" and isinstance(value, str) and value != "random":
         value = Path(value).name  # the file, not the folder it was read from: labels stay short
