@@ -96,7 +96,12 @@ for entry in "${QUEUE[@]}"; do
     resume=()
     if [ -f "$out/checkpoint.safetensors" ]; then
         resume=(--resume)
-        extra=()  # the run keeps the recipe it started with
+        # the run keeps the recipe it started with; only its task is named again (train checks it)
+        kept=()
+        for ((i = 0; i < ${#extra[@]}; i++)); do
+            [ "${extra[i]}" = --task ] && kept=(--task "${extra[i + 1]}")
+        done
+        extra=(${kept[@]+"${kept[@]}"})
     elif [ -n "$DEADLINE" ] && [ "$whole_hours" != 0 ]; then
         need=$(awk -v h="$whole_hours" 'BEGIN { printf "%d", h * 3600 }')
         if [ $(( $(date +%s) + need )) -gt "$DEADLINE" ]; then
