@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import json
 import os
 import time
 
@@ -95,7 +96,10 @@ def main() -> None:
     ap.add_argument("--family", choices=sorted(FAMILIES), default="paper",
                     help="scene model: the paper's trajectories (default), walking talkers (walk) or a walking "
                          "talker and a moving, turning array (turn)")
+    ap.add_argument("--json", metavar="FILE", help="also write the per-scene times and their summary to FILE")
     args = ap.parse_args()
+    if args.device and args.device.startswith("cuda") and not torch.cuda.is_available():
+        ap.exit(2, f"{ap.prog}: error: --device {args.device}: CUDA is not available here\n")
     if args.threads:
         torch.set_num_threads(args.threads)
     pra_threads = None
@@ -170,6 +174,13 @@ def main() -> None:
         bc, pc = np.array(cpu["builtin"][:n]), np.array(cpu["pyroomacoustics"])
         print(f"\nspeed-up on the {n} common scenes: {p.sum() / b.sum():.1f}x (total wall time), "
               f"{pc.sum() / bc.sum():.1f}x (total CPU time), median per scene {np.median(p / b):.1f}x")
+    if args.json:
+        summary = {name: {"scenes": len(ts), "mean_s": float(np.mean(ts)), "median_s": float(np.median(ts)),
+                          "mean_cpu_s": float(np.mean(cpu[name]))} for name, ts in times.items() if ts}
+        with open(args.json, "w") as f:
+            json.dump({"family": args.family, "device": str(backends["builtin"].device), "torch": torch.__version__,
+                       "cpu": _cpu_name(), "cpus": os.cpu_count(), "threads": torch.get_num_threads(),
+                       "times_s": times, "cpu_s": cpu, "summary": summary}, f, indent=1)
     if stages:
         names = list(stages[0])
         mean = {k: float(np.mean([s[k] for s in stages])) for k in names}

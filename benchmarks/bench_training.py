@@ -12,10 +12,16 @@ defaults `doabench train` uses (workers, precision, compile), timed over its sec
         --resolutions 16x32 8x16 --items 8 --e2e 16x32 --e2e-items 60
     .venv/bin/python benchmarks/bench_training.py --items 10 \\
         --trackers cross3d:8x16 cross3d:4x8 gcc-cnn1d max-cnn1d:64x128 spec-cnn2d seldnet   # any learned tracker
+    python3 benchmarks/bench_training.py --items 10 --trackers cross3d:16x32 --device cuda --json costs.json
+
+With ``--device cuda`` the step is the trainer's own on the GPU, timed in wall-clock seconds with a
+synchronisation (the GPU's time, not the host's); the item stays a CPU cost, as the data workers
+pay it. The two give the rates that bound training: workers / item seconds, and 1 / step seconds.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import sys
@@ -83,7 +89,8 @@ def step_cost(resolution: str, precision: str, compiled: bool, batch: int, repea
     return (time.process_time() - t0) / repeats / batch
 
 
-def tracker_costs(tracker: str, librispeech: str, n_items: int, compiled: bool = True) -> dict[str, float]:
+def tracker_costs(tracker: str, librispeech: str, n_items: int, compiled: bool = True,
+                  device: str = "cpu") -> dict[str, float]:
     """CPU seconds per trajectory of any learned tracker: the item (scene, simulation, features and
     network input, as a data worker makes it) and the trainer's own Adam step on a batch of those
     items (bf16 where the CPU has it, compiled as `doabench train`'s paper preset does), one thread.
@@ -92,18 +99,24 @@ def tracker_costs(tracker: str, librispeech: str, n_items: int, compiled: bool =
     from doabench.training.recipes import paper_recipe
 
     opts = TrainOptions(tracker=tracker, out=Path(tempfile.mkdtemp()), recipe=paper_recipe(), librispeech=librispeech,
-                        tracker_options={"weights": "random"}, workers=0, compile=compiled, threads=1)
+                        tracker_options={"weights": "random"}, workers=0, compile=compiled, threads=1, device=device)
     trainer = Trainer(opts, log=lambda m: None)
     items, _ = trainer._epoch_items(20, (5.0, 30.0))  # second-phase items (SNR 5-30 dB, batch 10)
+    on_gpu = device.startswith("cuda")
+    clock = time.perf_counter if on_gpu else time.process_time
+    sync = torch.cuda.synchronize if on_gpu else (lambda: None)
     t0 = time.process_time()
     batch = collate([items[k] for k in range(n_items)])
     item_s = (time.process_time() - t0) / n_items
+    repeats = 10 if on_gpu else 2
     for _ in range(2):  # warm-up (and compilation)
         trainer.train_step(batch)
-    t0 = time.process_time()
-    for _ in range(2):
+    sync()
+    t0 = clock()
+    for _ in range(repeats):
         trainer.train_step(batch)
-    return {"item": item_s, "step": (time.process_time() - t0) / 2 / n_items}
+    sync()
+    return {"item": item_s, "step": (clock() - t0) / repeats / n_items}
 
 
 def end_to_end(tracker: str, librispeech: str, n_items: int) -> dict[str, float]:
@@ -131,18 +144,27 @@ def main() -> None:
     ap.add_argument("--trackers", nargs="*", default=[],
                     help="learned trackers whose item and compiled-step costs to time with the trainer itself "
                          "(e.g. cross3d:4x8 gcc-cnn1d max-cnn1d:64x128 spec-cnn2d seldnet); then only these")
+    ap.add_argument("--device", default="cpu", help="where --trackers' steps run: cpu (default) or cuda")
+    ap.add_argument("--no-compile", dest="compile", action="store_false", help="--trackers' steps uncompiled")
+    ap.add_argument("--json", metavar="FILE", help="also write --trackers' costs to FILE")
     args = ap.parse_args()
+    if args.device.startswith("cuda") and not torch.cuda.is_available():
+        ap.exit(2, f"{ap.prog}: error: --device {args.device}: CUDA is not available here\n")
     warnings.simplefilter("ignore")
     torch.set_num_threads(1)
     print(f"CPU: {cpu_name()}, {os.cpu_count()} cores, torch {torch.__version__}, load before {os.getloadavg()}")
     if args.trackers:
-        print("| tracker | item CPU s (scene, simulation, features) | compiled step CPU s per trajectory (batch %d) |"
-              % args.items)
+        step_name = ("compiled " if args.compile else "") + ("step GPU wall s" if args.device != "cpu" else "step CPU s")
+        print(f"| tracker | item CPU s (scene, simulation, features) | {step_name} per trajectory (batch {args.items}) |")
         print("|---|---|---|")
+        costs = {}
         for tracker in args.trackers:
-            c = tracker_costs(tracker, args.librispeech, args.items)
-            print(f"| {tracker} | {c['item']:.3f} | {c['step']:.3f} |", flush=True)
+            costs[tracker] = c = tracker_costs(tracker, args.librispeech, args.items, args.compile, args.device)
+            print(f"| {tracker} | {c['item']:.3f} | {c['step']:.4f} |", flush=True)
         print(f"load after {os.getloadavg()}")
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump({"device": args.device, "compiled": args.compile, "batch": args.items, "costs": costs}, f)
         return
     costs = per_item_costs(f"cross3d:{args.resolutions[0]}", args.librispeech, args.items)
     print(f"per item (CPU s, 1 thread): simulation {costs['simulation']:.3f}, features "

@@ -259,3 +259,25 @@ def test_download_checksum_mismatch_leaves_nothing(tmp_path, tiny):
 def test_download_unknown_subset(tmp_path):
     with pytest.raises(ConfigError, match="unknown LibriSpeech subset"):
         download_librispeech("test-dirty", tmp_path)
+
+
+def test_the_librispeech_layout_fixture_reads_as_the_corpus(tmp_path):
+    """The embedded clips laid out as LibriSpeech (for GPU checks without the corpus) are read by the
+    corpus reader, with distinct speakers per subset; writing again changes nothing."""
+    from doabench.corpora.fixture import write_librispeech_layout
+    from doabench.corpora.speech import LibriSpeechSource
+    from doabench.errors import ConfigError
+
+    root = write_librispeech_layout(tmp_path / "LibriSpeech", speakers=3, utterances=2)
+    files = sorted(root.rglob("*.flac"))
+    assert len(files) == 12
+    stamps = [f.stat().st_mtime_ns for f in files]
+    write_librispeech_layout(root, speakers=3, utterances=2)
+    assert [f.stat().st_mtime_ns for f in files] == stamps
+    train = {s for s, _ in LibriSpeechSource(root, "train-clean-100").chapters}
+    test = {s for s, _ in LibriSpeechSource(root, "test-other").chapters}
+    assert len(train) == len(test) == 3 and not train & test
+    chunk = LibriSpeechSource(root, "train-clean-100").sample(np.random.default_rng(0), 20.0)
+    assert chunk.signal.shape == (320000,) and np.abs(chunk.signal).max() > 0
+    with pytest.raises(ConfigError, match="at least one speaker"):
+        write_librispeech_layout(root, speakers=0)

@@ -303,23 +303,6 @@ def test_a_checkpoint_missing_keys_or_with_code_is_refused(tmp_path, caches):
     assert not (tmp_path / "ran.txt").exists()
 
 
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-def test_train_on_cuda_end_to_end(tmp_path, librispeech_root):
-    """Builtin simulator, features, model and bf16 autocast on CUDA (no data workers)."""
-    from doabench.cli.main import main as cli
-
-    out = tmp_path / "run"
-    rc = cli(["train", "--tracker", "cross3d:4x8", "--tracker-opt", "weights=random", "--device", "cuda",
-              "--workers", "0", "--epochs", "1", "--epoch-size", "4", "--val-trajectories", "2", "--no-compile",
-              "--librispeech", str(librispeech_root), "--cache-root", str(tmp_path / "cache"), "--out", str(out),
-              "--quiet"])
-    assert rc == 0
-    from doabench.training.checkpoint import load_checkpoint
-
-    state = load_checkpoint(out / "checkpoint.safetensors")
-    assert state["device"].startswith("cuda") and state["precision"] == "bf16" and state["epoch"] == 1
-
-
 def test_cpu_preset_without_a_cache_leaves_no_run_folder(tmp_path, capsys):
     from doabench.cli.main import main as cli
 
