@@ -20,6 +20,7 @@
 #
 #   OUT=runs/gpu-check GPU_CHECK_BUDGET_S=420 bash benchmarks/gpu_check.sh
 #   GPU_CHECK_TRAJECTORIES=500 GPU_CHECK_EPOCHS=2 ...   # the training stage's size (these defaults)
+#   GPU_CHECK_ONLY="install-wheels install pytest-cuda run-cuda run-cpu" ...   # a rerun of some stages
 set -uo pipefail
 cd "$(dirname "$0")/.."
 OUT="${OUT:-runs/gpu-check}"
@@ -27,6 +28,7 @@ BUDGET="${GPU_CHECK_BUDGET_S:-420}"
 EPOCHS="${GPU_CHECK_EPOCHS:-2}"
 TRAJECTORIES="${GPU_CHECK_TRAJECTORIES:-500}"
 PY="${PYTHON:-python3}"
+ONLY="${GPU_CHECK_ONLY:-}"  # stage names to run (others skipped), e.g. "pytest-cuda run-cuda run-cpu"
 for v in BUDGET EPOCHS TRAJECTORIES; do
     [[ "${!v}" =~ ^[0-9]+$ ]] || { echo "gpu_check: ${v} must be a whole number, got '${!v}'" >&2; exit 2; }
 done
@@ -44,6 +46,9 @@ left() { echo $(( BUDGET - ($(date +%s) - START) )); }
 stage() {
     local name=$1 cap=$2 rest t0 rc
     shift 2
+    if [ -n "$ONLY" ] && [[ " $ONLY " != *" $name "* ]]; then
+        return
+    fi
     rest=$(left)
     if [ "$rest" -lt 15 ]; then
         say "== $name: skipped, the budget is spent"
@@ -100,7 +105,8 @@ stage run-cpu 90 "$PY" -m doabench run --tracker cross3d:16x32 --task sim-demo -
 
 # (a, the rest) the suite without the slow tests, with what the budget leaves
 workers=$(( $(nproc) > 2 ? $(nproc) - 2 : 1 ))
-stage pytest-not-slow 150 "$PY" -m pytest -p no:cacheprovider -m "not slow and not cuda" -q -rfE -n "$workers"
+stage pytest-not-slow 240 "$PY" -m pytest -p no:cacheprovider -m "not slow and not cuda" -rfE -n "$workers" -v \
+    | grep -E --line-buffered "FAILED|ERROR|passed|failed|^E "
 
 "$PY" - "$WORK" "$OUT" <<'EOF' 2>&1 | tee -a "$LOG"
 """Collect the stages' figures into $OUT/figures.json and print them."""
@@ -113,7 +119,8 @@ import numpy as np
 
 work, out = Path(sys.argv[1]), Path(sys.argv[2])
 figures = {"stages": {}}
-for line in (work / "stages.txt").read_text().splitlines():
+stages = work / "stages.txt"
+for line in (stages.read_text().splitlines() if stages.is_file() else []):
     name, rc, seconds = line.split()
     figures["stages"][name] = {"rc": rc, "seconds": int(seconds)}
 

@@ -3,7 +3,8 @@ Cross3D inference, `doabench run --device cuda` and training on a GPU.
 
 CI and the CPU machines have no GPU, so every test here skips there (the reason says so);
 benchmarks/gpu_check.sh runs them on a lent GPU. Tolerances are float32's: the GPU sums in
-another order (cuFFT, cuDNN), so results agree to rounding, not bit for bit."""
+another order (cuFFT, cuDNN), so results agree to rounding, not bit for bit (on an H200 the
+simulations differed by up to 1.02e-4 relative; a tail noise drawn by CUDA's generator gave 0.5)."""
 from __future__ import annotations
 
 import numpy as np
@@ -43,7 +44,7 @@ def test_builtin_simulation_on_cuda_equals_the_cpu_torch_path():
         y_cpu = get_simulator("builtin").simulate(room, src, mics, x, FS, seed=5)
     y_gpu = get_simulator("builtin", device="cuda").simulate(room, src, mics, x, FS, seed=5)
     assert y_gpu.shape == y_cpu.shape and np.all(np.isfinite(y_gpu))
-    assert _relative(y_gpu, y_cpu) < 1e-4
+    assert _relative(y_gpu, y_cpu) < 5e-4
 
 
 def test_moving_turning_array_simulates_alike_on_cuda():
@@ -57,7 +58,7 @@ def test_moving_turning_array_simulates_alike_on_cuda():
         y_cpu = get_simulator("builtin").simulate(scene.room, scene.trajectory, scene.mic_room_positions, x, FS, seed=3)
     y_gpu = get_simulator("builtin", device="cuda").simulate(scene.room, scene.trajectory, scene.mic_room_positions,
                                                              x, FS, seed=3)
-    assert _relative(y_gpu, y_cpu) < 1e-4
+    assert _relative(y_gpu, y_cpu) < 5e-4
 
 
 @pytest.mark.parametrize("delays", ["nearest", "exact"])

@@ -23,13 +23,24 @@ from doabench.cli.main import main
 from conftest import ROOT, tiny_task_toml
 
 # A causal SRP tracker slow enough (about a second per sim-demo episode) to be caught mid-run.
+# With $DOABENCH_TEST_HOLD naming a file, it also waits before its second episode while that file
+# exists: a test holds the run there, so that on any machine it is still running when checked.
 SLOW_TRACKER = '''
-import time
+import os, time
+from pathlib import Path
 from doabench.trackers.srp import SrpMaxTracker
 
 
 class SlowMax(SrpMaxTracker):
     name = "slow-max"
+    episodes = 0
+
+    def reset(self, *args, **kwargs):
+        hold = os.environ.get("DOABENCH_TEST_HOLD")
+        while hold and SlowMax.episodes >= 1 and Path(hold).exists():
+            time.sleep(0.02)
+        SlowMax.episodes += 1
+        return super().reset(*args, **kwargs)
 
     def step(self, observation):
         time.sleep(0.02)
@@ -203,7 +214,7 @@ def test_track_stopped_by_sigterm_writes_nothing(plugin, tmp_path):
 # `doabench train` itself (parser, main, the signal handling), with the tiny tracker, features and
 # caches of tests/test_training.py injected into its Trainer, slowed down so an epoch can be stopped.
 TRAIN_SCRIPT = '''
-import sys, time
+import os, sys, time
 from pathlib import Path
 import doabench
 import doabench.training.trainer as trainer_module
@@ -223,6 +234,9 @@ class SlowTrainer(trainer_module.Trainer):
 
     def train_step(self, batch):
         time.sleep(1.0)
+        hold = os.environ.get("DOABENCH_TEST_HOLD")  # held after the first checkpoint while the file exists
+        while hold and Path(hold).exists() and (self.out / "checkpoint.safetensors").exists():
+            time.sleep(0.02)
         return super().train_step(batch)
 
 
@@ -277,10 +291,13 @@ def test_two_trains_on_one_run_folder(plugin, tmp_path):
     script.write_text(TRAIN_SCRIPT)
     caches = tmp_path / "caches"
     out = tmp_path / "run"
-    first = start(train_cmd(script, caches, out), plugin, tmp_path)
+    hold = tmp_path / "hold"
+    hold.touch()
+    first = start(train_cmd(script, caches, out), dict(plugin, DOABENCH_TEST_HOLD=str(hold)), tmp_path)
     wait_for(first, lambda: (out / LATEST).is_file(), timeout=600)
     second = subprocess.run(train_cmd(script, caches, out, "--resume"), env=plugin, capture_output=True, text=True,
                             timeout=300)
+    hold.unlink()
     assert second.returncode == 2
     assert f"pid {first.pid}" in one_line(second.stderr) and "is writing the training run" in second.stderr
     _, err = first.communicate(timeout=900)
@@ -291,9 +308,12 @@ def test_two_trains_on_one_run_folder(plugin, tmp_path):
 def test_two_runs_on_one_output_one_proceeds(plugin, straight_run, tmp_path):
     out = tmp_path / "r"
     cmd = doabench(*RUN, "--out", str(out))
-    first = start(cmd, plugin, tmp_path)
+    hold = tmp_path / "hold"
+    hold.touch()
+    first = start(cmd, dict(plugin, DOABENCH_TEST_HOLD=str(hold)), tmp_path)
     wait_for(first, lambda: out.is_dir() and any(out.glob(".*.lock")) and journal_records(out) >= 1)
     second = subprocess.run(cmd, env=plugin, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    hold.unlink()
     assert second.returncode == 2
     line = one_line(second.stderr)
     assert f"pid {first.pid}" in line and "wait for it or stop it" in line

@@ -294,7 +294,7 @@ def _moving_scene(t60=0.6, n_points=12):
 
 
 def _parts(room, src, mics, seed):
-    gen = engine.make_generator(seed, torch.device("cpu"))
+    gen = engine.make_generator(seed)
     return engine.image_source_parts(room, torch.tensor(src), torch.tensor(mics), FS, gen)
 
 

@@ -75,14 +75,18 @@ def work_elements(device: torch.device, cpu: int, accelerator: int) -> int:
     return cpu if torch.device(device).type == "cpu" else accelerator
 
 
-def make_generator(seed: int | torch.Generator | None, device: torch.device) -> torch.Generator:
-    """A generator on ``device``: ``seed`` as is when it is one, else seeded with ``seed``
-    (a fresh random seed when None)."""
+def make_generator(seed: int | torch.Generator | None) -> torch.Generator:
+    """A CPU generator: ``seed`` as is when it is one, else seeded with ``seed`` (a fresh random
+    seed when None).
+
+    On the CPU whatever device simulates: CUDA's generator draws other numbers for the same seed,
+    so a task's episode would change with ``--device``; the draws (the diffuse tail's noise, a few
+    MB at most) are moved to the device instead."""
     if isinstance(seed, torch.Generator):
         return seed
     if seed is None:
         seed = int(np.random.SeedSequence().generate_state(1, np.uint64)[0] >> 1)
-    gen = torch.Generator(device=device)
+    gen = torch.Generator()
     gen.manual_seed(int(seed))
     return gen
 
@@ -439,16 +443,18 @@ def tail_level(
 
 
 def draw_tail_noise(
-    n_points: int, n_mics: int, layout: RirLayout, generator: torch.Generator
+    n_points: int, n_mics: int, layout: RirLayout, generator: torch.Generator, device: torch.device | None = None
 ) -> torch.Tensor:
-    """Standard normal noise ``(S, M, n_taps - n_diff)`` float32 on ``generator``'s device.
+    """Standard normal noise ``(S, M, n_taps - n_diff)`` float32, drawn on ``generator``'s device
+    and returned on ``device`` (default: the generator's).
 
     Drawn in one call for the whole batch, so the tail of a given seed does not depend on how
     the engine chunks the points (nor on the backend that computed the early part). The engine
     itself draws ``S = 1`` (one shared tail, :func:`shared_tail`).
     """
     n = max(layout.n_taps - layout.n_diff, 0)
-    return torch.randn(n_points, n_mics, n, generator=generator, device=generator.device, dtype=torch.float32)
+    noise = torch.randn(n_points, n_mics, n, generator=generator, device=generator.device, dtype=torch.float32)
+    return noise if device is None else noise.to(device)
 
 
 def shared_tail(
@@ -469,7 +475,7 @@ def shared_tail(
     """
     if levels is None or room.t60 == 0 or layout.n_taps <= layout.n_diff:
         return None
-    noise = draw_tail_noise(1, levels.shape[1], layout, generator)[0]
+    noise = draw_tail_noise(1, levels.shape[1], layout, generator, levels.device)[0]
     n = torch.arange(layout.n_diff, layout.n_taps, device=noise.device, dtype=torch.float64)
     env = torch.exp(-0.5 * decay_rate(room.t60) * n / fs).to(torch.float32)  # amplitude
     noise.mul_(levels.to(noise.device).mean(0).sqrt().to(torch.float32)[:, None])

@@ -157,7 +157,7 @@ class TorchBackend:
         """RIRs ``(S, M, n_taps)`` float32, ``n_taps = round(Tmax fs)`` (direct path only when
         T60 = 0). ``seed`` (int or torch.Generator) fixes the diffuse-tail noise."""
         src, mic, fs = prepare_geometry(room, sources, mics, fs)
-        gen = engine.make_generator(seed, self.device)
+        gen = engine.make_generator(seed)
         with _threads(self.device):
             return self.rirs_tensor(room, src, mic, fs, gen).cpu().numpy()
 
@@ -167,7 +167,7 @@ class TorchBackend:
         rounding where the backend has a shared tail)."""
         src, mic, fs = prepare_geometry(room, sources, mics, fs)
         x = _signal(signal)
-        gen = engine.make_generator(seed, self.device)
+        gen = engine.make_generator(seed)
         xt = torch.as_tensor(x, device=self.device)
         with _threads(self.device):
             layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mic), fs)
