@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from doabench.errors import ConfigError, InputError, NotFoundError
-from doabench.features.kinds import HALF_KINDS  # noqa: F401  (re-exported: the schema's float16 kinds)
 from doabench.features.kinds import DATASET_KINDS, FEATURES_GROUP, MAP_KINDS, item_name, storage_path
 
 SCHEMA = "doabench.dataset/1"
@@ -35,8 +34,6 @@ SCHEMA_PREFIX = "doabench.dataset/"
 EPISODES = "episodes"
 FEATURES = FEATURES_GROUP
 TRUTH_KEYS = ("directions", "elevation", "azimuth", "times")
-# What --features requests, and HALF_KINDS what --float16 halves: doabench.features.kinds' lists.
-KINDS = DATASET_KINDS
 DEFAULT_FEATURES = "srp:16x32"
 COMPRESSIONS = ("gzip", "lzf", "none")
 
@@ -71,7 +68,7 @@ def parse_feature(text: str) -> FeatureRequest:
     """``"srp:16x32"`` / ``"srp"`` (16x32) / ``"gcc"`` / ``"spectrogram"`` / ``"audio"``."""
     kind, _, res = text.strip().partition(":")
     kind = kind.strip().lower()
-    if kind not in KINDS:
+    if kind not in DATASET_KINDS:
         raise ConfigError(f"unknown dataset feature {text!r}; choose from srp:NxM, gcc, spectrogram, audio")
     if kind != "srp":
         if res:
@@ -93,7 +90,7 @@ def parse_features(spec: str | Iterable[str]) -> tuple[FeatureRequest, ...]:
     requests = {parse_feature(t) for t in items if str(t).strip()}
     if not requests:
         raise ConfigError("no dataset feature requested; e.g. --features srp:16x32,gcc")
-    return tuple(sorted(requests, key=lambda r: (KINDS.index(r.kind), r.resolution or (0, 0))))
+    return tuple(sorted(requests, key=lambda r: (DATASET_KINDS.index(r.kind), r.resolution or (0, 0))))
 
 
 def shard_indices(n_episodes: int, shard: tuple[int, int] | None) -> list[int]:

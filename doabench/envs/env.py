@@ -34,20 +34,22 @@ from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, InputError
-from doabench.features.kinds import OBSERVATION_KINDS, check_kinds
+from doabench.features.kinds import DEFAULT_RESOLUTION, check_kinds
 from doabench.features.plan import ObservationPlan
 from doabench.framing import FrameSpec
 from doabench.geometry import fold_to_upper, great_circle_error, parse_resolution
-
-FEATURE_KINDS = OBSERVATION_KINDS  # the plan's list (doabench.features.kinds), under the environment's name
 
 
 class DoaEnv(gymnasium.Env):
     """``gymnasium.make("doabench/<task>-v<version>", features=("srp", "srp_max"), resolution=(16, 32))``.
 
-    Parameters: ``task`` (id or TaskSpec); ``features`` (subset of srp, srp_max, gcc, spectrogram);
+    Parameters: ``task`` (id or TaskSpec); ``features`` (srp, srp_max, gcc, spectrogram, audio or a
+    registered plug-in kind);
     ``resolution`` ((n_theta, n_phi) or "16x32"); ``delays`` ("nearest" or "exact");
-    ``frame_spec`` (default: the task's); ``device`` for simulation and features; ``episodes``:
+    ``frame_spec`` (default: the task's); ``spectrogram_frame_spec`` (only None or ``frame_spec``:
+    the environment frames every observation alike; a tracker's
+    :attr:`~doabench.Tracker.observation_spec` gives all these at once through
+    :meth:`~doabench.features.spec.ObservationSpec.env_options`); ``device`` for simulation and features; ``episodes``:
     this environment's share of the task's episodes (indices), served in order by ``reset()``
     without an ``episode`` option, each once per pass (``info["repeat"]`` counts the passes; see
     :func:`doabench.envs.vector.make_vec`, which splits a task across sub-environments);
@@ -58,9 +60,10 @@ class DoaEnv(gymnasium.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, task: str | TaskSpec, features: Sequence[str] = ("srp", "srp_max"),
-                 resolution: tuple[int, int] | str = (16, 32), delays: str = "nearest",
+                 resolution: tuple[int, int] | str = DEFAULT_RESOLUTION, delays: str = "nearest",
                  frame_spec: FrameSpec | None = None, device: str | None = None, cache_size: int = 2,
-                 episodes: Sequence[int] | None = None, **source_options: Any) -> None:
+                 episodes: Sequence[int] | None = None, spectrogram_frame_spec: FrameSpec | None = None,
+                 **source_options: Any) -> None:
         super().__init__()
         self.spec_task = get_task_spec(task)
         self.features = check_kinds(features)
@@ -70,6 +73,10 @@ class DoaEnv(gymnasium.Env):
         if self.frame_spec.fs != self.spec_task.frames.fs:
             raise ConfigError(f"task {self.spec_task.id!r} runs at {self.spec_task.frames.fs} Hz, "
                               f"not {self.frame_spec.fs} Hz")
+        if spectrogram_frame_spec not in (None, self.frame_spec) and "spectrogram" in self.features:
+            raise ConfigError(f"the environment frames every observation on one grid ({self.frame_spec.to_dict()}); "
+                              f"a spectrogram on its own frames ({spectrogram_frame_spec.to_dict()}) has another "
+                              "number of frames: compute it with an ObservationPlan instead")
         self.device = device
         self.array: MicArray = get_array(self.spec_task.array)
         self.source = make_episode_source(self.spec_task, device=device, **source_options)

@@ -2,7 +2,8 @@
 
 ``functional`` holds the pure torch functions; the classes precompute tables once. Conventions and
 shapes: docs/features.md. :class:`ObservationPlan` (``plan``) is the one pipeline from a
-recording to per-frame observations; ``kinds`` the one list of observation kinds and their names.
+recording to per-frame observations; ``kinds`` the registered observation kinds and their names;
+``spec`` the :class:`ObservationSpec` a tracker declares (what it reads).
 
 The names are loaded on first use (PEP 562): ``kinds`` and the plan's spaces need no torch, so
 ``import doabench.features.kinds`` (the dataset schema, the environment) does not import it.
@@ -18,9 +19,12 @@ _EXPORTS = {
     "SRPPHAT": "transforms",
     "GCCPHAT": "transforms",
     "Spectrogram": "transforms",
-    "KINDS": "transforms",
     "StreamingFeatureExtractor": "streaming",
     "ObservationPlan": "plan",
+    "ObservationSpec": "spec",
+    "FeatureKind": "kinds",
+    "FrameContext": "kinds",
+    "register_feature_kind": "kinds",
     "OBSERVATION_KINDS": "kinds",
     "stft_frames": "functional",
     "gcc_phat": "functional",

@@ -26,11 +26,11 @@ import numpy as np
 import torch
 
 from doabench.errors import ConfigError, InputError
+from doabench.features.kinds import DELAY_MODES
 from doabench.geometry import SPEED_OF_SOUND, grid_unit_vectors
 
 PHAT_EPS = 1e-12
 DelayMode = Literal["nearest", "exact"]
-DELAY_MODES = ("nearest", "exact")
 
 # Working-set bounds for the blocked computations. Small blocks keep intermediates in cache, which
 # matters more than GEMM size on memory-bound CPUs.

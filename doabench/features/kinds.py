@@ -1,8 +1,17 @@
-"""The observation kinds and their names: the one list every layer derives its own from.
+"""The observation kinds: registered objects, and the names every layer derives from them.
+
+Each kind is a :class:`FeatureKind` (lhotse's feature extractors and torchaudio's transforms are
+the models): its name, the shape and Gymnasium bounds of one frame, where a dataset file keeps it
+and in what precision, and, for a kind added by a plug-in, how to compute it. The built-in kinds
+(srp, srp_max, gcc, spectrogram, audio) are computed by :class:`~doabench.features.FeatureExtractor`
+(they share one STFT); a plug-in kind brings its own batched ``compute`` and is registered with
+:func:`register_feature_kind` or declared in the ``doabench.feature_kinds`` entry-point group
+(docs/extending.md). The environment, make-dataset, ``track``, the trainer and the plots all read
+kinds through :class:`~doabench.features.plan.ObservationPlan`, which asks this registry.
 
 Kept apart from :mod:`doabench.features.plan` (which computes them) so that the transforms, the
-dataset schema and the environment can read the lists without importing torch or the plan, and
-without an import cycle (the plan imports the transforms, the transforms import these lists).
+dataset schema and the environment can read the kinds without importing torch or the plan, and
+without an import cycle (the plan imports the transforms, the transforms import this module).
 
 Names: an srp or srp_max item carries its grid, ``srp:16x32`` / ``srp_max:16x32``; the other
 kinds are named by the kind alone (``gcc``, ``spectrogram``, ``audio``). In a dataset file an item
@@ -11,37 +20,155 @@ recording) at ``audio`` (docs/hdf5-schema.md).
 """
 from __future__ import annotations
 
-from typing import Iterable, Sequence
+import difflib
+from dataclasses import dataclass
+from importlib import metadata
+from typing import Any, Callable, Iterable, NamedTuple, Sequence
 
 from doabench.errors import ConfigError
+from doabench.framing import FrameSpec
 from doabench.geometry import parse_resolution
 
-#: Every kind an environment observation may hold, in the order error messages list them.
-OBSERVATION_KINDS = ("srp", "srp_max", "gcc", "spectrogram", "audio")
-#: The kinds :class:`~doabench.features.FeatureExtractor` computes, in its output order.
-EXTRACTOR_KINDS = ("srp", "srp_max", "gcc", "spectrogram")
-#: Kinds that are the recording's own samples, framed, not computed by the extractor.
-FRAMED_KINDS = tuple(k for k in OBSERVATION_KINDS if k not in EXTRACTOR_KINDS)
-#: Kinds computed on an SRP grid: their names carry the grid's resolution.
-MAP_KINDS = ("srp", "srp_max")
-#: Maps that a dataset's ``--float16`` stores as half precision (srp_max and audio stay float32:
-#: srp_max holds two normalised angles, audio the recording itself).
-HALF_KINDS = ("srp", "gcc", "spectrogram")
-#: What ``make-dataset --features`` requests, in the files' canonical order; an ``srp`` request
-#: stores its ``srp_max`` too, so srp_max is not requested on its own.
-DATASET_KINDS = tuple(k for k in OBSERVATION_KINDS if k != "srp_max")
 #: The SRP grid when nothing asks for another one.
 DEFAULT_RESOLUTION = (16, 32)
 #: Where the dataset file keeps computed features (the raw ``audio`` lies beside them).
 FEATURES_GROUP = "features"
+#: The SRP delay modes: pair delays rounded to whole samples (the paper's) or exact fractional ones.
+DELAY_MODES = ("nearest", "exact")
+#: Entry-point group of feature kinds added by other packages (``name = "package.module:KIND"``).
+ENTRY_POINT_GROUP = "doabench.feature_kinds"
+
+
+class FrameContext(NamedTuple):
+    """What the shape of one frame of a kind may depend on."""
+
+    array: Any                   # the MicArray
+    frame_spec: FrameSpec        # the observations' frames
+    resolution: tuple[int, int]  # the SRP grid (n_theta, n_phi)
+    spectrogram_frame_spec: FrameSpec | None = None  # the spectrogram's own frames, when it has them
+
+
+@dataclass(frozen=True)
+class FeatureKind:
+    """One observation kind.
+
+    ``frame_shape(context)``: the shape of one frame (no batch or frame axis). ``low``/``high``:
+    the bounds of its Gymnasium box (float32). ``on_grid``: computed on an SRP grid, so its name
+    carries the grid (``srp:16x32``). ``framed``: the recording's own samples, framed, not computed.
+    ``half``: make-dataset's ``--float16`` stores it in half precision. ``requestable``: make-dataset
+    ``--features`` may ask for it (srp_max comes with every srp map). ``compute``: for a plug-in kind,
+    ``compute(audio (batch, n_mics, samples) float32 tensor, frame_vad (batch, frames) bool tensor,
+    frame_spec, array) -> (batch, frames, *frame_shape)`` float32 tensor; the features of silent
+    frames are zeroed after it. None for the built-in kinds, which the extractor computes together.
+    """
+
+    name: str
+    frame_shape: Callable[[FrameContext], tuple[int, ...]]
+    low: float = float("-inf")
+    high: float = float("inf")
+    on_grid: bool = False
+    framed: bool = False
+    half: bool = False
+    requestable: bool = True
+    compute: Callable[..., Any] | None = None
+    description: str = ""
+
+    def storage_path(self, resolution: str | None = None) -> str:
+        """Where an item of this kind lies in a dataset episode group (``resolution`` as ``16x32``)."""
+        if self.on_grid:
+            return f"{FEATURES_GROUP}/{self.name}_{resolution}"
+        return self.name if self.framed else f"{FEATURES_GROUP}/{self.name}"
+
+
+def _gcc_shape(c: FrameContext) -> tuple[int, ...]:
+    return (len(c.array.pairs), 2 * c.array.max_lag(c.frame_spec.fs) + 1)
+
+
+def _spectrogram_shape(c: FrameContext) -> tuple[int, ...]:
+    return (2 * c.array.n_mics, (c.spectrogram_frame_spec or c.frame_spec).window // 2)
+
+
+BUILTIN_KINDS: tuple[FeatureKind, ...] = (
+    # mean removed and divided by the maximum: the maximum is 1, the minimum has no bound
+    FeatureKind("srp", lambda c: tuple(c.resolution), high=1.0, on_grid=True, half=True,
+                description="SRP-PHAT map on the equiangular grid"),
+    FeatureKind("srp_max", lambda c: (2,), low=0.0, high=1.0, on_grid=True, requestable=False,
+                description="normalised elevation and azimuth of the map's maximum"),
+    # PHAT-weighted: a mean of unit phasors, so |R| <= 1
+    FeatureKind("gcc", _gcc_shape, low=-1.0, high=1.0, half=True, description="GCC-PHAT of every mic pair"),
+    FeatureKind("spectrogram", _spectrogram_shape, low=-1.0, high=1.0, half=True,
+                description="magnitude and phase spectrogram"),
+    FeatureKind("audio", lambda c: (c.array.n_mics, c.frame_spec.window), framed=True,
+                description="the recording's samples, framed"),
+)
+_REGISTRY: dict[str, FeatureKind] = {k.name: k for k in BUILTIN_KINDS}
+
+#: The built-in kinds an environment observation may hold, in the order error messages list them
+#: (:func:`observation_kinds` adds the plug-ins').
+OBSERVATION_KINDS = tuple(k.name for k in BUILTIN_KINDS)
+#: The built-in kinds :class:`~doabench.features.FeatureExtractor` computes together, in its output order.
+EXTRACTOR_KINDS = tuple(k.name for k in BUILTIN_KINDS if not k.framed)
+#: Kinds that are the recording's own samples, framed, not computed by the extractor.
+FRAMED_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.framed)
+#: Kinds computed on an SRP grid: their names carry the grid's resolution.
+MAP_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.on_grid)
+#: Maps that a dataset's ``--float16`` stores as half precision (srp_max and audio stay float32:
+#: srp_max holds two normalised angles, audio the recording itself).
+HALF_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.half)
+#: What ``make-dataset --features`` requests, in the files' canonical order; an ``srp`` request
+#: stores its ``srp_max`` too, so srp_max is not requested on its own.
+DATASET_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.requestable)
+
+
+def register_feature_kind(kind: FeatureKind) -> FeatureKind:
+    """Add a plug-in kind (it must bring ``compute``); returns it. A built-in name cannot be taken."""
+    if not isinstance(kind, FeatureKind):
+        raise ConfigError(f"a feature kind must be a doabench FeatureKind, got {type(kind).__name__}")
+    if kind.name in OBSERVATION_KINDS or ":" in kind.name or not kind.name.isidentifier():
+        raise ConfigError(f"feature kind name {kind.name!r} is taken or not a plain identifier")
+    if kind.compute is None or kind.framed or kind.on_grid:
+        raise ConfigError(f"feature kind {kind.name!r}: a plug-in kind brings compute() and is neither framed "
+                          "nor on the SRP grid")
+    _REGISTRY[kind.name] = kind
+    return kind
+
+
+def _declared() -> dict[str, Any]:
+    return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def feature_kind(name: str) -> FeatureKind:
+    """The registered kind ``name`` (a declared plug-in is loaded on first use), else a ConfigError
+    naming the nearest kind."""
+    kind = _REGISTRY.get(name)
+    if kind is None and name in _declared():
+        register_feature_kind(_declared()[name].load())
+        kind = _REGISTRY[name]
+    if kind is None:
+        known = observation_kinds()
+        near = difflib.get_close_matches(str(name), known, n=1)
+        hint = f" (did you mean {near[0]!r}?)" if near else ""
+        raise ConfigError(f"unknown feature kind {name!r}{hint}; choose from {', '.join(known)}")
+    return kind
+
+
+def observation_kinds() -> tuple[str, ...]:
+    """Every kind an observation may hold: the built-ins, then the registered and declared plug-ins."""
+    return OBSERVATION_KINDS + tuple(sorted(({*_REGISTRY, *_declared()}) - set(OBSERVATION_KINDS)))
+
+
+def is_plugin(name: str) -> bool:
+    """True for a kind a plug-in computes (not one of the extractor's built-ins)."""
+    return name not in OBSERVATION_KINDS
 
 
 def check_kinds(kinds: Iterable[str]) -> tuple[str, ...]:
-    """``kinds`` as a tuple, or the environment's ConfigError naming the unknown ones."""
+    """``kinds`` as a tuple, or the environment's ConfigError naming the unknown ones (plug-in kinds
+    registered or declared count as known)."""
     kinds = tuple(kinds)
-    unknown = sorted(set(kinds) - set(OBSERVATION_KINDS))
+    unknown = sorted(set(kinds) - set(observation_kinds()))
     if unknown:
-        raise ConfigError(f"unknown feature kind(s) {unknown}; choose from {', '.join(OBSERVATION_KINDS)}")
+        raise ConfigError(f"unknown feature kind(s) {unknown}; choose from {', '.join(observation_kinds())}")
     return kinds
 
 
@@ -85,6 +212,4 @@ def storage_path(name: str) -> str:
     """Path of item ``name`` inside a dataset episode group: ``srp:16x32`` -> ``features/srp_16x32``,
     ``gcc`` -> ``features/gcc``, ``audio`` -> ``audio``."""
     kind, _, res = str(name).partition(":")
-    if kind in MAP_KINDS:
-        return f"{FEATURES_GROUP}/{kind}_{res}"
-    return kind if kind in FRAMED_KINDS else f"{FEATURES_GROUP}/{kind}"  # raw samples, not a feature
+    return feature_kind(kind).storage_path(res)

@@ -20,6 +20,7 @@ import torch
 
 from doabench.arrays import MicArray, get_array
 from doabench.errors import InputError
+from doabench.features.kinds import DEFAULT_RESOLUTION
 from doabench.framing import FrameSpec
 from doabench.geometry import grid_angles
 
@@ -41,7 +42,7 @@ class SrpMaps:
         return self.colatitudes
 
 
-def srp_maps(audio, array: MicArray | str, fs: int = 16000, resolution=(16, 32), window: int = 4096,
+def srp_maps(audio, array: MicArray | str, fs: int = 16000, resolution=DEFAULT_RESOLUTION, window: int = 4096,
              hop: int | None = None, mode: str = "nearest", normalize: bool = True,
              device: str | None = None) -> SrpMaps:
     """SRP-PHAT maps of ``audio`` for ``array`` (a built-in name, a JSON/YAML file or a MicArray).

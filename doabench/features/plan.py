@@ -26,6 +26,8 @@ from doabench.features.kinds import (
     DEFAULT_RESOLUTION,
     FRAMED_KINDS,
     MAP_KINDS,
+    FrameContext,
+    feature_kind,
     item_name,
 )
 from doabench.framing import FrameSpec, frame_signal
@@ -72,10 +74,11 @@ class ObservationPlan:
         self._extractors: dict[tuple, Any] = {}
 
     @classmethod
-    def for_tracker(cls, tracker: Any, array: MicArray | str, delays: str = "nearest") -> "ObservationPlan":
-        """The observations a tracker reads: its ``features``, ``resolution`` (default 16x32) and
-        ``frame_spec`` (the spectrogram on the same grid)."""
-        return cls(tracker.features, array, tracker.frame_spec, (tracker.resolution or DEFAULT_RESOLUTION,), delays)
+    def for_tracker(cls, tracker: Any, array: MicArray | str, delays: str | None = None) -> "ObservationPlan":
+        """The observations a tracker reads (its :attr:`~doabench.Tracker.observation_spec`), on
+        ``delays`` when given (another delay mode on purpose), else on the tracker's own."""
+        spec = tracker.observation_spec
+        return (spec if delays is None else spec.with_delays(delays)).plan(array)
 
     # -- description ------------------------------------------------------------------------------
     @property
@@ -100,30 +103,18 @@ class ObservationPlan:
         maps = tuple(k for k in first if k in MAP_KINDS)
         return [(first, self.resolution)] + ([(maps, r) for r in self.resolutions[1:]] if maps else [])
 
+    def frame_context(self) -> FrameContext:
+        """What the per-frame shapes depend on (the first grid)."""
+        return FrameContext(self.array, self.frame_spec, self.resolution, self.spectrogram_frame_spec)
+
     def frame_shape(self, kind: str) -> tuple[int, ...]:
         """Per-frame shape of ``kind`` (without the frame axis) on the first grid."""
-        fs, m = self.frame_spec, self.array.n_mics
-        shapes = {
-            "srp": tuple(self.resolution),
-            "srp_max": (2,),
-            "gcc": (len(self.array.pairs), 2 * self.array.max_lag(fs.fs) + 1),
-            "spectrogram": (2 * m, (self.spectrogram_frame_spec or fs).window // 2),
-            "audio": (m, fs.window),
-        }
-        return shapes[kind]
+        return tuple(feature_kind(kind).frame_shape(self.frame_context()))
 
     def space(self, kind: str) -> spaces.Box:
-        """The Gymnasium box of one frame of ``kind`` (float32)."""
-        low, high = {
-            # mean removed and divided by the maximum: the maximum is 1, the minimum has no bound
-            "srp": (-np.inf, 1.0),
-            "srp_max": (0.0, 1.0),
-            # PHAT-weighted: a mean of unit phasors, so |R| <= 1
-            "gcc": (-1.0, 1.0),
-            "spectrogram": (-1.0, 1.0),
-            "audio": (-np.inf, np.inf),
-        }[kind]
-        return spaces.Box(low, high, self.frame_shape(kind), np.float32)
+        """The Gymnasium box of one frame of ``kind`` (float32, the kind's bounds)."""
+        k = feature_kind(kind)
+        return spaces.Box(k.low, k.high, self.frame_shape(kind), np.float32)
 
     def observation_space(self) -> spaces.Dict:
         """``{kind: Box}`` for each of ``kinds`` plus ``vad``: ``Discrete(2)``."""

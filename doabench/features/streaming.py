@@ -14,8 +14,9 @@ from doabench.framing import FrameSpec
 from doabench.features.transforms import FeatureExtractor, prepare_audio, prepare_vad
 
 
-class _FrameStream:
-    """Buffers samples for one FrameSpec and releases segments of complete frames."""
+class FrameStream:
+    """Buffers samples for one FrameSpec and releases segments of complete frames (the streaming
+    extractor's, and ``doabench track``'s framing of raw ``audio`` observations)."""
 
     def __init__(self, spec: FrameSpec) -> None:
         self.spec = spec
@@ -61,8 +62,8 @@ class StreamingFeatureExtractor:
     def reset(self) -> None:
         """Forget buffered audio; the next push starts a new recording."""
         ex = self.extractor
-        self._main = _FrameStream(ex.frame_spec)
-        self._spec = _FrameStream(ex.spectrogram_frame_spec) if ex.separate_spectrogram_grid else None
+        self._main = FrameStream(ex.frame_spec)
+        self._spec = FrameStream(ex.spectrogram_frame_spec) if ex.separate_spectrogram_grid else None
         self._layout: tuple[int, bool] | None = None
         self.samples_seen = 0
 

@@ -20,11 +20,10 @@ import torch
 from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError, InputError
 from doabench.features import functional as F
-from doabench.features.kinds import EXTRACTOR_KINDS
+from doabench.features.kinds import DEFAULT_RESOLUTION, EXTRACTOR_KINDS, FrameContext, feature_kind, is_plugin
 from doabench.framing import FrameSpec, frame_vad
 from doabench.geometry import SPEED_OF_SOUND, parse_resolution
 
-KINDS = EXTRACTOR_KINDS  # what FeatureExtractor computes; the one list is doabench.features.kinds
 # Precompute the exact-mode steering table only below this size; above it the table is rebuilt
 # per grid block on every call (cheap next to the beamformer product for many frames).
 _STEER_CACHE_BYTES = 256 << 20
@@ -165,7 +164,7 @@ class SRPPHAT(_Transform):
     def __init__(
         self,
         array: MicArray | str,
-        resolution=(16, 32),
+        resolution=DEFAULT_RESOLUTION,
         frame_spec: FrameSpec = FrameSpec(),
         mode: F.DelayMode = "nearest",
         normalize: bool = True,
@@ -225,6 +224,9 @@ class FeatureExtractor(_Transform):
     * ``gcc``: ``(B, T, n_pairs, 2 * max_lag + 1)``
     * ``spectrogram``: ``(B, T_s, 2 * n_mics, K_s // 2)`` on ``spectrogram_frame_spec``'s grid
 
+    and any plug-in kind (:func:`~doabench.features.kinds.register_feature_kind`), computed by its
+    own ``compute`` on the main frame grid, after the built-ins,
+
     plus ``vad`` ``(B, T)`` bool (frame active when > 2/3 of its samples are). Features of silent
     frames are zero. When the spectrogram has its own frame spec, ``spectrogram_vad``
     ``(B, T_s)`` is added for its grid. All features are float32.
@@ -233,8 +235,8 @@ class FeatureExtractor(_Transform):
     def __init__(
         self,
         array: MicArray | str,
-        kinds: Iterable[str] = KINDS,
-        resolution=(16, 32),
+        kinds: Iterable[str] = EXTRACTOR_KINDS,
+        resolution=DEFAULT_RESOLUTION,
         mode: F.DelayMode = "nearest",
         frame_spec: FrameSpec = FrameSpec(),
         spectrogram_frame_spec: FrameSpec | None = None,
@@ -242,10 +244,13 @@ class FeatureExtractor(_Transform):
     ) -> None:
         super().__init__()
         kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
-        unknown = [k for k in kinds if k not in KINDS]
+        plugins = tuple(k for k in kinds if is_plugin(k) and feature_kind(k).compute is not None)
+        unknown = [k for k in kinds if k not in EXTRACTOR_KINDS and k not in plugins]
         if unknown or not kinds:
-            raise ConfigError(f"unknown feature kind(s) {unknown or kinds!r}: use some of {', '.join(KINDS)}")
-        self.kinds = tuple(k for k in KINDS if k in kinds)
+            raise ConfigError(f"unknown feature kind(s) {unknown or kinds!r}: use some of "
+                              f"{', '.join(EXTRACTOR_KINDS)} or a registered plug-in kind")
+        self.plugin_kinds = tuple(dict.fromkeys(plugins))
+        self.kinds = tuple(k for k in EXTRACTOR_KINDS if k in kinds) + self.plugin_kinds
         self.array = get_array(array)
         self.frame_spec = frame_spec
         spec_fs = spectrogram_frame_spec or frame_spec
@@ -283,15 +288,8 @@ class FeatureExtractor(_Transform):
 
     def feature_shapes(self) -> dict[str, tuple[int, ...]]:
         """Per-frame shape of each output key (without batch and frame axes)."""
-        shapes: dict[str, tuple[int, ...]] = {}
-        if "srp" in self.kinds:
-            shapes["srp"] = self.resolution
-        if "srp_max" in self.kinds:
-            shapes["srp_max"] = (2,)
-        if "gcc" in self.kinds:
-            shapes["gcc"] = (len(self.array.pairs), self.gcc.n_lags)
-        if "spectrogram" in self.kinds:
-            shapes["spectrogram"] = (2 * self.array.n_mics, self.spectrogram_frame_spec.window // 2)
+        context = FrameContext(self.array, self.frame_spec, self.resolution, self.spectrogram_frame_spec)
+        shapes: dict[str, tuple[int, ...]] = {k: tuple(feature_kind(k).frame_shape(context)) for k in self.kinds}
         shapes["vad"] = ()
         if self.separate_spectrogram_grid:
             shapes["spectrogram_vad"] = ()
@@ -329,6 +327,8 @@ class FeatureExtractor(_Transform):
                     out["srp_max"] = F.zero_silent(F.map_maxima(maps, self.srp.planar), vad)
             if "gcc" in self.kinds:
                 out["gcc"] = F.zero_silent(gcc, vad)
+            for name in self.plugin_kinds:
+                out[name] = F.zero_silent(feature_kind(name).compute(x, vad, fs_main, self.array), vad)
         if "spectrogram" in self.kinds:
             spec = self.spectrogram_frame_spec
             if self.separate_spectrogram_grid and separate:

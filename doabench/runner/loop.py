@@ -86,16 +86,16 @@ def check_trained(tracker: Tracker, keyword: bool = False) -> None:
     raise ConfigError(f"tracker {tracker.name!r} has no trained weights{what}; {hint}")
 
 
-def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays: str = "nearest",
+def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays: str | None = None,
                  **env_options: Any) -> DoaEnv:
-    """The environment configured with the features, resolution and frames a tracker needs."""
+    """The environment giving the observations a tracker reads (its ``observation_spec``), on
+    ``delays`` when given (another delay mode on purpose), else on the tracker's own."""
     spec = get_task_spec(task)
-    frame_spec = tracker.frame_spec
-    if frame_spec.fs != spec.frames.fs:
-        raise ConfigError(f"tracker {tracker.name!r} needs {frame_spec.fs} Hz audio; task {spec.id!r} is "
+    wanted = tracker.observation_spec if delays is None else tracker.observation_spec.with_delays(delays)
+    if wanted.frame_spec.fs != spec.frames.fs:
+        raise ConfigError(f"tracker {tracker.name!r} needs {wanted.frame_spec.fs} Hz audio; task {spec.id!r} is "
                           f"{spec.frames.fs} Hz")
-    return DoaEnv(spec, features=tuple(tracker.features), resolution=tracker.resolution or (16, 32),
-                  delays=delays, frame_spec=frame_spec, device=device, **env_options)
+    return DoaEnv(spec, **wanted.env_options(), device=device, **env_options)
 
 
 def step_frame(tracker: Tracker, observation: Any, t: int, where: str = "") -> np.ndarray:

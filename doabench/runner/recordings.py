@@ -18,9 +18,10 @@ def recording_vad(audio: np.ndarray, fs: int) -> np.ndarray:
     return webrtc_vad(mono / peak, fs)[0]
 
 
-def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | None, delays: str = "nearest",
+def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | None, delays: str | None = None,
                     device: str | None = None) -> dict[str, np.ndarray]:
-    """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording."""
+    """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording, on
+    the tracker's own observations (``delays``: another delay mode on purpose)."""
     from doabench.features.plan import ObservationPlan
 
     spec = tracker.frame_spec
@@ -36,7 +37,7 @@ def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | 
     return {"times": spec.times(n), "directions": directions, "vad": feats["vad"].astype(bool)}
 
 
-def track_stream(tracker, array, chunks, delays: str = "nearest", device: str | None = None) -> dict[str, np.ndarray]:
+def track_stream(tracker, array, chunks, delays: str | None = None, device: str | None = None) -> dict[str, np.ndarray]:
     """:func:`track_recording` on a recording given as chunks, in memory bounded by the chunk size.
 
     ``chunks``: iterable of ``(audio (n_mics, n), sample_vad (n,) | None)`` in order. Features
@@ -48,11 +49,11 @@ def track_stream(tracker, array, chunks, delays: str = "nearest", device: str | 
     import torch
 
     from doabench.features.plan import ObservationPlan, framed_audio
-    from doabench.features.streaming import _FrameStream
+    from doabench.features.streaming import FrameStream
 
     spec = tracker.frame_spec
     extractor = ObservationPlan.for_tracker(tracker, array, delays).streaming_extractor()
-    framer = _FrameStream(spec) if "audio" in tracker.features else None
+    framer = FrameStream(spec) if "audio" in tracker.features else None
     guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
     directions: list[np.ndarray] = []
     parts: dict[str, list[np.ndarray]] = {}

@@ -39,6 +39,7 @@ from typing import Any, ClassVar, Mapping, Sequence, TypedDict
 import numpy as np
 
 from doabench.arrays import MicArray
+from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 
 
@@ -103,6 +104,15 @@ class Tracker:
         it was trained on none (a classical tracker, random weights): a run uses this mode unless
         the user asks for another on purpose (:func:`resolve_delays`)."""
         return None
+
+    @property
+    def observation_spec(self) -> ObservationSpec:
+        """What it reads, as one value: its ``features`` on its ``resolution`` (16x32 when it reads no
+        map), its ``frame_spec``, the delays its weights were trained on (``nearest`` when none) and
+        a ``spectrogram_frame_spec`` when it declares one. The environment, the trainer and
+        ``doabench track`` compute exactly this unless the user asks for other delays on purpose."""
+        return ObservationSpec.of(self.features, self.resolution, self.frame_spec, self.trained_delays,
+                                  getattr(self, "spectrogram_frame_spec", None))
 
     @property
     def receptive_field_frames(self) -> int | None:

@@ -14,6 +14,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from doabench.arrays import MicArray
+from doabench.features.kinds import DEFAULT_RESOLUTION
 from doabench.framing import frame_signal
 from doabench.geometry import SPEED_OF_SOUND, angles_to_unit, grid_angles, parse_resolution
 from doabench.trackers.base import Tracker
@@ -30,7 +31,7 @@ class _PyroomacousticsTracker(Tracker):
                  fmin: float | None = None, fmax: float | None = None, **options: Any) -> None:
         super().__init__(spec, **options)
         text = resolution or spec
-        self._resolution = parse_resolution(text) if text else (16, 32)
+        self._resolution = parse_resolution(text) if text else DEFAULT_RESOLUTION
         self.nfft = int(nfft)
         self.fmin = self.default_band[0] if fmin is None else float(fmin)
         self.fmax = self.default_band[1] if fmax is None else float(fmax)

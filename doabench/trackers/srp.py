@@ -7,11 +7,11 @@ import numpy as np
 
 from doabench.arrays import MicArray
 from doabench.errors import ConfigError
+from doabench.features.kinds import DEFAULT_RESOLUTION
 from doabench.geometry import grid_unit_vectors, parse_resolution
 from doabench.trackers.base import Tracker
 from doabench.trackers.registry import register_tracker
 
-DEFAULT_RESOLUTION = (16, 32)
 _INITIAL_DIRECTION = np.array([1.0, 0.0, 0.0])  # before the first active frame: straight ahead
 
 

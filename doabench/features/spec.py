@@ -1,0 +1,87 @@
+"""What a tracker reads, as one value: :class:`ObservationSpec` (kinds, SRP grid, frames, delays).
+
+A tracker declares it (:attr:`doabench.Tracker.observation_spec`); the environment
+(:func:`doabench.runner.loop.make_env_for`), the trainer, ``doabench track`` and the ONNX export
+take that value instead of reassembling it from the tracker's attributes, so a tracker is
+evaluated on the observations it was trained on. A run that asks for other delays on purpose says
+so in its results (``features.trained_delays``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Sequence
+
+from doabench.errors import ConfigError
+from doabench.features.kinds import DEFAULT_RESOLUTION, DELAY_MODES, check_kinds, resolution_text
+from doabench.framing import FrameSpec
+from doabench.geometry import parse_resolution
+
+if TYPE_CHECKING:  # the plan imports torch lazily, but the spec needs none of it
+    from doabench.arrays import MicArray
+    from doabench.features.plan import ObservationPlan
+
+
+@dataclass(frozen=True)
+class ObservationSpec:
+    """The observations a tracker reads.
+
+    ``kinds``: observation kinds (``srp``, ``srp_max``, ``gcc``, ``spectrogram``, ``audio`` or a
+    plug-in's); ``resolution``: the SRP grid ``(n_theta, n_phi)``; ``frame_spec``: window, hop and
+    sample rate; ``delays``: the SRP delay mode (``nearest``, the paper's, or ``exact``);
+    ``spectrogram_frame_spec``: the spectrogram's own frames when they differ (None: the same).
+    """
+
+    kinds: tuple[str, ...]
+    resolution: tuple[int, int] = DEFAULT_RESOLUTION
+    frame_spec: FrameSpec = FrameSpec()
+    delays: str = "nearest"
+    spectrogram_frame_spec: FrameSpec | None = None
+
+    def __post_init__(self) -> None:
+        kinds = (self.kinds,) if isinstance(self.kinds, str) else tuple(self.kinds)
+        object.__setattr__(self, "kinds", check_kinds(kinds))
+        resolution = self.resolution
+        resolution = parse_resolution(resolution) if isinstance(resolution, str) else tuple(int(v) for v in resolution)
+        object.__setattr__(self, "resolution", resolution)
+        if self.delays not in DELAY_MODES:
+            raise ConfigError(f"unknown delay mode {self.delays!r}: use one of {', '.join(DELAY_MODES)}")
+        if not isinstance(self.frame_spec, FrameSpec) or not (
+                self.spectrogram_frame_spec is None or isinstance(self.spectrogram_frame_spec, FrameSpec)):
+            raise ConfigError("frame_spec and spectrogram_frame_spec must be doabench.FrameSpec values")
+        if self.spectrogram_frame_spec == self.frame_spec:
+            object.__setattr__(self, "spectrogram_frame_spec", None)  # one grid: said one way
+
+    @classmethod
+    def of(cls, kinds: Sequence[str], resolution: Sequence[int] | str | None = None,
+           frame_spec: FrameSpec | None = None, delays: str | None = None,
+           spectrogram_frame_spec: FrameSpec | None = None) -> "ObservationSpec":
+        """A spec with the defaults for what is None (the 16x32 grid, the paper's frames, nearest delays)."""
+        return cls(tuple(kinds), resolution or DEFAULT_RESOLUTION, frame_spec or FrameSpec(), delays or "nearest",
+                   spectrogram_frame_spec)
+
+    def with_delays(self, delays: str) -> "ObservationSpec":
+        """The same observations on ``delays`` (a run that asks for other delays on purpose)."""
+        return replace(self, delays=delays)
+
+    @property
+    def separate_spectrogram_grid(self) -> bool:
+        return "spectrogram" in self.kinds and self.spectrogram_frame_spec is not None
+
+    def plan(self, array: "MicArray | str") -> "ObservationPlan":
+        """The :class:`~doabench.features.plan.ObservationPlan` computing these observations for ``array``."""
+        from doabench.features.plan import ObservationPlan
+
+        return ObservationPlan(self.kinds, array, self.frame_spec, (self.resolution,), self.delays,
+                               self.spectrogram_frame_spec)
+
+    def env_options(self) -> dict[str, Any]:
+        """The :class:`~doabench.envs.DoaEnv` keywords that give these observations."""
+        return {"features": self.kinds, "resolution": self.resolution, "delays": self.delays,
+                "frame_spec": self.frame_spec, "spectrogram_frame_spec": self.spectrogram_frame_spec}
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"kinds": list(self.kinds), "resolution": resolution_text(self.resolution),
+                             "delays": self.delays, "frame": self.frame_spec.to_dict()}
+        if self.spectrogram_frame_spec is not None:
+            d["spectrogram_frame"] = self.spectrogram_frame_spec.to_dict()
+        return d

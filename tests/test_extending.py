@@ -1,0 +1,116 @@
+"""The plug-in points of docs/extending.md: a feature kind and a simulator backend from outside the
+package, each the tested example the page shows; and the observation contract a tracker declares.
+
+The plug-ins run in subprocesses: a registration is process-wide, and the other tests' messages
+list the registered kinds."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import doabench
+from doabench.envs.env import DoaEnv
+from doabench.errors import ConfigError
+from doabench.features import ObservationSpec
+from doabench.features.kinds import feature_kind
+from doabench.framing import FrameSpec
+
+from conftest import ROOT
+
+EXAMPLES = ROOT / "docs" / "examples"
+
+
+def _run(code: str) -> str:
+    done = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300, env={**__import__("os").environ, "PYTHONPATH": f"{EXAMPLES}:{ROOT}"})
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+@pytest.mark.parametrize("example", ["frame_energy.py", "free_field.py"])
+def test_the_page_shows_the_tested_examples(example):
+    code = (EXAMPLES / example).read_text().rstrip()
+    assert f"```python\n{code}\n```" in (ROOT / "docs" / "extending.md").read_text()
+
+
+def test_a_plugin_feature_kind_is_an_observation_like_the_built_in_ones():
+    out = _run('''
+        import numpy as np, gymnasium
+        from doabench.features import register_feature_kind
+        from doabench.features.kinds import observation_kinds, storage_path
+        from frame_energy import FRAME_ENERGY
+
+        register_feature_kind(FRAME_ENERGY)
+        assert "frame_energy" in observation_kinds() and storage_path("frame_energy") == "features/frame_energy"
+        env = gymnasium.make("doabench/sim-demo-v2", features=("srp", "frame_energy"), resolution=(4, 8))
+        assert env.observation_space["frame_energy"].shape == (12,)
+        obs, _ = env.reset(options={"episode": 0})
+        base = env.unwrapped
+        episode, feats, _ = base.load_episode(0)
+        spec = base.frame_spec
+        frames = np.lib.stride_tricks.sliding_window_view(episode.audio, spec.window, axis=1)[:, ::spec.hop]
+        expected = np.log10(np.maximum((frames.astype(np.float64) ** 2).mean(-1), 1e-12)).T  # (T, M)
+        active = feats["vad"] == 1
+        assert np.allclose(feats["frame_energy"][active], expected[active], atol=1e-4)
+        assert not feats["frame_energy"][~active].any()  # silent frames zeroed, as every kind's
+        print("ok", active.sum(), (~active).sum())
+    ''')
+    assert out.startswith("ok")
+
+
+def test_a_misspelt_feature_kind_names_the_nearest():
+    with pytest.raises(ConfigError, match="did you mean 'spectrogram'"):
+        feature_kind("spectogram")
+    with pytest.raises(ConfigError, match="taken"):
+        doabench.features.register_feature_kind(feature_kind("srp"))
+
+
+def test_a_plugin_simulator_backend_renders_free_field_physics_and_tasks():
+    out = _run('''
+        import numpy as np, gymnasium
+        from doabench.acoustics.room import Room
+        from doabench.acoustics.simulators import get_simulator, register_simulator
+        from doabench.geometry import SPEED_OF_SOUND
+        from free_field import FreeFieldSimulator
+
+        register_simulator("free-field", FreeFieldSimulator)
+        room = Room((6.0, 5.0, 3.0), 0.8, (1, 1, 1, 1, 1, 1))  # reverberant: the backend ignores the walls
+        src, mics = np.array([[1.0, 1.0, 1.5]]), np.array([[4.0, 3.0, 1.2], [4.1, 3.0, 1.2]])
+        click = np.zeros(16000)
+        click[1000] = 1.0
+        y = get_simulator("free-field").simulate(room, src, mics, click, 16000, seed=0)
+        r = np.linalg.norm(mics - src, axis=1)
+        assert np.all(np.abs(np.argmax(np.abs(y), axis=1) - 1000 - r / SPEED_OF_SOUND * 16000) <= 1)
+        assert np.allclose((y.astype(np.float64) ** 2).sum(1), (1 / (4 * np.pi * r)) ** 2, rtol=0.05)
+        env = gymnasium.make("doabench/sim-demo-v2", features=("srp",), resolution=(8, 16), backend="free-field")
+        obs, info = env.reset(options={"episode": 0})
+        print("ok", obs["srp"].shape)
+    ''')
+    assert out.startswith("ok (8, 16)")
+
+
+def test_a_tracker_declares_what_it_reads_as_one_value():
+    spec = doabench.make_tracker("srp-max:8x16").observation_spec
+    assert spec == ObservationSpec(("srp",), (8, 16), FrameSpec(), "nearest")
+    assert spec.with_delays("exact").delays == "exact" and spec.plan("nao").frame_shape("srp") == (8, 16)
+    env = DoaEnv("sim-demo", **spec.env_options())
+    assert env.observation_space["srp"].shape == (8, 16)
+    with pytest.raises(ConfigError, match="unknown delay mode"):
+        ObservationSpec(("srp",), delays="fractional")
+    with pytest.raises(ConfigError, match="unknown feature kind"):
+        ObservationSpec(("srp", "spectogram"))
+
+
+def test_the_environment_refuses_a_spectrogram_on_its_own_frames():
+    """A tracker whose spectrogram has its own frame grid cannot be given it by the environment
+    (another number of frames): one line, rather than observations it was not trained on."""
+    spec = ObservationSpec(("spectrogram",), frame_spec=FrameSpec(), spectrogram_frame_spec=FrameSpec(window=512))
+    assert spec.separate_spectrogram_grid
+    with pytest.raises(ConfigError, match="on its own frames"):
+        DoaEnv("sim-demo", **spec.env_options())
+    same = ObservationSpec(("spectrogram",), spectrogram_frame_spec=FrameSpec())
+    assert same.spectrogram_frame_spec is None and np.isfinite(DoaEnv("sim-demo", **same.env_options()).n_episodes)
