@@ -519,11 +519,11 @@ def test_held_frame_index_is_batched_and_matches_the_tracker_rule():
 def test_a_bf16_run_resumed_on_a_cpu_without_native_bf16_continues_in_fp32(tmp_path, caches, monkeypatch):
     """Emulated bf16 autocast is ~13x slower than float32 (AVX2-only CPU): auto falls back, says so,
     and the per-epoch record and the exported weights show both precisions."""
-    import doabench.training.trainer as trainer_module
+    import doabench.training.precision as precision_module
     from doabench.training.export import precision_record
 
     make_trainer(tmp_path / "run", caches, max_epochs=1, precision="bf16").run()
-    monkeypatch.setattr(trainer_module, "cpu_has_native_bf16", lambda: False)
+    monkeypatch.setattr(precision_module, "cpu_has_native_bf16", lambda: False)
     notes: list[str] = []
     opts = TrainOptions(tracker="tiny", out=tmp_path / "run", recipe=tiny_recipe(), progress=False, resume=True)
     resumed = Trainer(opts, tracker=tiny_tracker(), feature_fn=energy_features, train_cache=caches[0],
@@ -539,11 +539,11 @@ def test_a_bf16_run_resumed_on_a_cpu_without_native_bf16_continues_in_fp32(tmp_p
 
 
 def test_resume_precision_keeps_the_run_unless_told_or_unsupported(monkeypatch):
-    import doabench.training.trainer as trainer_module
-    from doabench.training.trainer import resume_precision
+    import doabench.training.precision as precision_module
+    from doabench.training.precision import resume_precision
 
     cpu = torch.device("cpu")
-    monkeypatch.setattr(trainer_module, "cpu_has_native_bf16", lambda: True)
+    monkeypatch.setattr(precision_module, "cpu_has_native_bf16", lambda: True)
     assert resume_precision("bf16", "auto", cpu) == ("bf16", None)
     assert resume_precision("fp32", "auto", cpu) == ("fp32", None)  # auto does not upgrade an fp32 run
     # a bf16 run that went on in fp32 on an AVX2-only CPU goes back to bf16 where bf16 is native
@@ -553,10 +553,39 @@ def test_resume_precision_keeps_the_run_unless_told_or_unsupported(monkeypatch):
     assert resume_precision(None, "auto", cpu) == ("bf16", None)
     precision, note = resume_precision("bf16", "fp32", cpu)
     assert precision == "fp32" and "--precision" in note
-    monkeypatch.setattr(trainer_module, "cpu_has_native_bf16", lambda: False)
+    monkeypatch.setattr(precision_module, "cpu_has_native_bf16", lambda: False)
     assert resume_precision(None, "auto", cpu) == ("fp32", None)
     assert resume_precision("bf16", "bf16", cpu) == ("bf16", None)  # forced: kept, however slow
     assert resume_precision("bf16", "auto", cpu)[0] == "fp32"
     assert resume_precision("fp32", "auto", cpu, started_in="bf16") == ("fp32", None)  # still no native bf16
     with pytest.raises(doabench.DoabenchError, match="precision"):
         resume_precision("bf16", "fp16", cpu)
+
+
+def test_run_progress_fills_in_what_older_states_lack_and_keeps_the_best_weights(tmp_path):
+    from doabench.training.run_state import LEGACY_BEST_BY, RunProgress, best_by, check_same_task
+
+    old = {"epoch": 2, "history": [{"epoch": 1}, {"epoch": 2, "precision": "fp32"}], "best": 5.0, "compute_s": 9.0,
+           "trajectories_seen": 8, "precision": "bf16", "task": "sim-train"}
+    progress = RunProgress.from_saved(old)
+    assert [r["precision"] for r in progress.history] == ["bf16", "fp32"]  # rows before the per-epoch record
+    assert progress.best_epoch == 2 and progress.latest_is_best
+    assert best_by(old) == LEGACY_BEST_BY and best_by(None) == "val_rmsae_held"
+    # the task version of a state that did not record it comes from the run's config.json
+    (tmp_path / "config.json").write_text(json.dumps({"task_version": 99}))
+    with pytest.raises(doabench.DoabenchError, match="version 99"):
+        check_same_task(old, doabench.get_task_spec("sim-train"), tmp_path)
+    # a worse epoch keeps the weights it started from as the best; a better one drops them again
+    before = {"w": torch.zeros(1)}
+    progress.add_epoch({"epoch": 3}, 6.0, before)
+    assert (progress.epoch, progress.best_epoch, progress.best_weights) == (3, 2, before)
+    progress.add_epoch({"epoch": 4}, 4.0, None)
+    assert (progress.best, progress.best_epoch, progress.best_weights) == (4.0, 4, None)
+
+
+def test_the_trainer_module_keeps_the_names_other_code_imports():
+    import doabench.training.trainer as trainer_module
+
+    for name in ("Trainer", "TrainOptions", "cpu_has_native_bf16", "default_workers", "available_cores", "write_log",
+                 "plot_history", "LOCK_NAME", "CSV_COLUMNS", "resume_precision"):
+        assert hasattr(trainer_module, name), name

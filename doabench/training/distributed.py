@@ -110,20 +110,16 @@ class DataParallel:
         """This rank's share of the epoch's batches (the trainer's DataLoader settings otherwise)."""
         from torch.utils.data import DataLoader
 
-        from doabench.training.data import collate
-        from doabench.training.trainer import _one_thread_worker
+        from doabench.training.epoch_data import loader_options
 
         batches, weights = rank_batches(len(items), int(batch_size), self.rank, self.world)
-        workers = trainer.workers
-        loader = DataLoader(items, batch_sampler=batches, collate_fn=collate, num_workers=workers,
-                            worker_init_fn=_one_thread_worker if workers else None,
-                            prefetch_factor=4 if workers else None, persistent_workers=False)
+        loader = DataLoader(items, batch_sampler=batches, **loader_options(trainer.workers))
         return _WeightedLoader(loader, weights, self)
 
 
 def _per_rank_workers(trainer, world: int) -> int:
     """DataLoader workers per rank: the trainer's, capped so N ranks do not oversubscribe the cores."""
-    from doabench.training.trainer import available_cores
+    from doabench.training.epoch_data import available_cores
 
     if trainer.workers <= 0 or trainer.options.workers is not None:
         return trainer.workers  # none, or what the user asked for
@@ -182,7 +178,7 @@ def run_distributed(options, log: Callable[[str], None] = print, timeout_s: floa
         trainer = Trainer(options, log=log, **trainer_kwargs)
         state = setup(trainer, rank, world, local_rank, backend)
         if rank == 0:  # a missing validation cache is simulated once, by rank 0, while the others wait
-            trainer._val_cache()
+            trainer.data.val_cache()
         # Every rank has read the run folder (a resume checkpoint, or none) before rank 0 writes it.
         dist.barrier()
         if rank == 0:
