@@ -21,7 +21,7 @@ from doabench.framing import FrameSpec
 from doabench.training.cache import TrajectoryCache
 from doabench.training.data import CachedItems, DatasetItems, NetworkInputs, SimulatedItems, ValidationItems, collate
 from doabench.training.pipeline import cache_folder, ensure_cache, scene_distribution, speech_for_split
-from doabench.training.protocol import feature_options
+from doabench.training.protocol import training_observations
 from doabench.training.recipes import Recipe
 
 FeatureFn = Callable[[torch.Tensor, torch.Tensor], Mapping[str, torch.Tensor]]
@@ -82,13 +82,8 @@ def default_features(tracker: Any, spec: TaskSpec, frame_spec: FrameSpec) -> Fea
     one the environment and make-dataset use), asked for the tracker's kinds as they are so that
     a kind it cannot compute gets the extractor's own error."""
     from doabench.arrays import get_array
-    from doabench.features.kinds import DEFAULT_RESOLUTION
-    from doabench.features.plan import ObservationPlan
 
-    declared = feature_options(tracker)
-    plan = ObservationPlan(tracker.features, get_array(spec.array), frame_spec,
-                           (tracker.resolution or DEFAULT_RESOLUTION,), declared["delays"],
-                           declared["spectrogram_frame_spec"])
+    plan = training_observations(tracker, frame_spec).plan(get_array(spec.array))
     extractor = plan.extractor(kinds=tuple(tracker.features))
     return lambda audio, vad: extractor(audio, vad)
 

@@ -28,6 +28,7 @@ from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
 import torch
 
 from doabench.errors import ConfigError
+from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 
 REQUIRED_ATTRIBUTES = ("network", "network_input", "save_weights", "features", "frame_spec")
@@ -78,6 +79,15 @@ def feature_options(tracker: Any) -> dict[str, Any]:
         raise ConfigError(f"tracker {getattr(tracker, 'name', tracker)!r}: spectrogram_frame_spec must be a "
                           f"doabench.FrameSpec, got {type(spec).__name__}")
     return {"delays": str(delays), "spectrogram_frame_spec": spec}
+
+
+def training_observations(tracker: Any, frame_spec: FrameSpec) -> ObservationSpec:
+    """What a learned tracker trains on, as one value: its ``features`` on its ``resolution``
+    (16x32 when None), the run's ``frame_spec``, and the delays and spectrogram frames it declares
+    (:func:`feature_options`)."""
+    declared = feature_options(tracker)
+    return ObservationSpec.of(tuple(tracker.features), tracker.resolution, frame_spec, declared["delays"],
+                              declared["spectrogram_frame_spec"])
 
 
 def training_defaults(tracker: Any) -> dict[str, Any]:
