@@ -114,3 +114,46 @@ def test_the_environment_refuses_a_spectrogram_on_its_own_frames():
         DoaEnv("sim-demo", **spec.env_options())
     same = ObservationSpec(("spectrogram",), spectrogram_frame_spec=FrameSpec())
     assert same.spectrogram_frame_spec is None and np.isfinite(DoaEnv("sim-demo", **same.env_options()).n_episodes)
+
+
+def test_task_kinds_declare_their_options_and_scoring_policy():
+    """Each built-in kind declares its run-time options as a dataclass and its headline; the CLI's
+    corpus flags are options of some kind (so the two cannot drift); a kind is given only its own."""
+    import argparse
+    import dataclasses
+
+    from doabench.cli.common import add_corpus_options
+    from doabench.envs.sources import available_task_kinds, kind_options, task_kind
+
+    policies = {}
+    for kind in ("simulated", "locata", "dataset"):
+        factory = task_kind(kind)
+        assert dataclasses.is_dataclass(factory.Options), kind
+        policies[kind] = getattr(factory, "headline", None)
+    assert policies == {"simulated": "pooled", "locata": "recording_mean", "dataset": None}
+    taken = set().union(*(kind_options(task_kind(k)) for k in available_task_kinds()))
+    parser = argparse.ArgumentParser()
+    add_corpus_options(parser)
+    flags = {a.dest for a in parser._actions if a.dest != "help"}
+    assert flags <= taken, flags - taken
+    assert kind_options(task_kind("simulated")) == {"librispeech", "backend", "device", "scene_overrides"}
+
+
+def test_a_plugin_kind_without_declared_options_gets_every_option():
+    """A kind whose factory is ``f(spec, **options)`` and declares no ``Options`` is given every option
+    that was given (not None), as before kinds declared theirs."""
+    import dataclasses
+
+    from doabench.envs.registry import get_task_spec
+    from doabench.envs.sources import make_episode_source, register_task_kind, task_kind
+
+    seen = {}
+
+    def factory(spec, **options):
+        seen.update(options)
+        return task_kind("simulated")(dataclasses.replace(spec, kind="simulated"))
+
+    register_task_kind("test-any-options", factory)
+    spec = dataclasses.replace(get_task_spec("sim-demo"), kind="test-any-options")
+    assert len(make_episode_source(spec, librispeech="/somewhere", locata_root=None)) == 4
+    assert seen == {"librispeech": "/somewhere"}

@@ -44,6 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     from doabench.cli.common import check_output_folder, make_checked_tracker, set_interrupt_note
     from doabench.envs.registry import get_task_spec
+    from doabench.envs.sources import kind_options, task_kind
     from doabench.errors import ConfigError
     from doabench.results.writer import alias_files, check_overwrite, format_summary, write_results
     from doabench.runner import RunSpec
@@ -61,9 +62,9 @@ def main(args: argparse.Namespace) -> int:
     if spec.trained_delays is not None:
         print(f"note: {spec.tracker} was trained on {spec.trained_delays} SRP delays; running with --delays "
               f"{spec.delays} as asked (the results record both)", file=sys.stderr)
-    if args.vad and get_task_spec(spec.task).kind != "locata":
-        raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.task!r} is {get_task_spec(spec.task).kind} "
-                          "(its VAD is the scene's)")
+    kind = get_task_spec(spec.task).kind
+    if args.vad and "vad" not in kind_options(task_kind(kind)):
+        raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.task!r} is {kind} (its VAD is the scene's)")
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
     # Refused before the work: a file of another configuration under this name (never overwritten silently).

@@ -63,10 +63,20 @@ def resolve_file_task(task_id: str) -> TaskSpec:
         )
 
 
-class DatasetEpisodes:
-    """Episode source of a ``dataset`` task (see the module docstring)."""
+@dataclass(frozen=True)
+class DatasetOptions:
+    """A ``dataset`` task takes no run-time option: the file holds everything."""
 
-    def __init__(self, spec: TaskSpec, **_: Any) -> None:
+
+class DatasetEpisodes:
+    """Episode source of a ``dataset`` task (see the module docstring).
+
+    Scoring policy: that of the stored episodes (no ``headline`` declared: the per-recording mean
+    when they are recordings, as LOCATA's, else the pooled RMSAE)."""
+
+    Options = DatasetOptions
+
+    def __init__(self, spec: TaskSpec) -> None:
         self.spec = spec
         self.path = Path(spec.params["path"])
         self.file = DatasetFile(self.path)

@@ -4,6 +4,7 @@ Registered through the ``doabench.task_kinds`` entry-point group (pyproject.toml
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from doabench.arrays import get_array
@@ -13,14 +14,32 @@ from doabench.episode import Episode
 from doabench.errors import ConfigError, NotFoundError
 
 
-class SimulatedEpisodes:
-    """Episodes of a ``simulated`` task (a single distribution, a grid cell, or a whole grid)."""
+@dataclass(frozen=True)
+class SimulatedOptions:
+    """The run-time options of a ``simulated`` task (``doabench run --librispeech ... --backend ...``,
+    ``gymnasium.make(..., backend=...)``)."""
 
-    def __init__(self, spec: TaskSpec, librispeech: str | None = None, backend: str = "builtin",
-                 device: str | None = None, scene_overrides: dict[str, Any] | None = None, **_: Any) -> None:
-        """``scene_overrides`` replaces scene-distribution fields of every cell (e.g.
-        ``{"duration_s": 3}`` for quick checks); results record it, and it changes the episodes."""
+    librispeech: str | None = None  # LibriSpeech root, for tasks that speak LibriSpeech (else $DOABENCH_LIBRISPEECH)
+    backend: str = "builtin"  # room simulator: builtin, pyroomacoustics, gpurir or a plug-in's
+    device: str | None = None  # torch device of the builtin simulator (cpu, cuda)
+    # scene-distribution fields replaced in every cell (e.g. {"duration_s": 3} for quick checks);
+    # results record it, and it changes the episodes
+    scene_overrides: dict[str, Any] | None = None
+
+
+class SimulatedEpisodes:
+    """Episodes of a ``simulated`` task (a single distribution, a grid cell, or a whole grid).
+
+    Scoring policy: the headline is the RMSAE pooled over every frame of every episode."""
+
+    Options = SimulatedOptions
+    headline = "pooled"
+
+    def __init__(self, spec: TaskSpec, **options: Any) -> None:
         from doabench.acoustics.simulators import get_simulator
+
+        opts = SimulatedOptions(**options)
+        librispeech, backend, device, scene_overrides = opts.librispeech, opts.backend, opts.device, opts.scene_overrides
 
         self.spec = spec
         self.array = get_array(spec.array)

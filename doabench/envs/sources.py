@@ -2,7 +2,13 @@
 
 Each task ``kind`` has a factory ``factory(spec, **options)``; it gets the spec and the run-time
 options (corpus paths, simulator backend, device) and returns an object with ``__len__``,
-``episode(index) -> Episode`` and ``describe() -> dict``. Kinds come from one place, the
+``episode(index) -> Episode`` and ``describe() -> dict``. A kind declares its options as a
+dataclass, ``factory.Options`` (``SimulatedOptions``, ``LocataOptions``: each field a keyword, its
+default and a comment saying what it does), and its scoring policy as ``factory.headline``
+(``"pooled"``: the RMSAE over every frame; ``"recording_mean"``: the mean of the per-recording
+RMSAEs, LOCATA's). The factory is given only the options its kind takes: one command line serves
+every kind (``--locata-root`` on a simulated task is not its option), and an option no kind takes is
+a one-line error naming the nearest one. Kinds come from one place, the
 ``doabench.task_kinds`` entry-point group (``name = "package.module:Factory"``; doabench's own
 ``simulated``, ``locata`` and ``dataset`` are declared in its pyproject.toml, like a plugin's), loaded
 when a task of that kind is first asked for; :func:`register_task_kind` adds one at run time. This
@@ -12,6 +18,7 @@ running random state.
 """
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import inspect
 from importlib import metadata
@@ -54,7 +61,15 @@ def available_task_kinds() -> list[str]:
     return sorted(set(_KINDS) | {ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)})
 
 
+def task_kind(kind: str) -> Callable[..., EpisodeSource]:
+    """The factory of task kind ``kind`` (loaded from its entry point on first use)."""
+    if kind not in _KINDS:
+        _load_kind(kind)
+    return _KINDS[kind]
+
+
 def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
+    """The episode source of ``spec``: its kind's factory, given the options (not None) its kind takes."""
     if spec.kind not in _KINDS:
         _load_kind(spec.kind)
     if spec.kind not in _KINDS:
@@ -65,11 +80,27 @@ def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
             "(pip install -e .)")
         raise ConfigError(f"task {spec.id!r}: unknown kind {spec.kind!r} (known: {', '.join(known)}){hint}")
     check_options(options)
-    return _KINDS[spec.kind](spec, **options)
+    factory = _KINDS[spec.kind]
+    given = {k: v for k, v in options.items() if v is not None}
+    if not _takes_any_option(factory):
+        taken = kind_options(factory)
+        given = {k: v for k, v in given.items() if k in taken}
+    return factory(spec, **given)
+
+
+def _takes_any_option(factory: Callable[..., EpisodeSource]) -> bool:
+    """A plug-in factory ``f(spec, **options)`` that declares no ``Options`` is given every option."""
+    if dataclasses.is_dataclass(getattr(factory, "Options", None)):
+        return False
+    return any(p.kind is p.VAR_KEYWORD for p in inspect.signature(factory).parameters.values())
 
 
 def kind_options(factory: Callable[..., EpisodeSource]) -> set[str]:
-    """The run-time options a kind's factory names (its keyword parameters after the spec)."""
+    """The run-time options a kind takes: the fields of its ``Options`` dataclass, or (a kind that
+    declares none) its factory's keyword parameters after the spec."""
+    declared = getattr(factory, "Options", None)
+    if declared is not None and dataclasses.is_dataclass(declared):
+        return {f.name for f in dataclasses.fields(declared)}
     params = list(inspect.signature(factory).parameters.values())[1:]
     return {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
 

@@ -12,6 +12,7 @@ placeholder (the corpus copy decides).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from doabench.envs.spec import TaskSpec
@@ -23,11 +24,27 @@ from doabench.locata.reader import VAD_MODES, read_recording
 LICENSE = "LOCATA corpus, ODC-BY 1.0, DOI 10.5281/zenodo.3630471"
 
 
-class LocataEpisodes:
-    """Episodes of a ``locata`` task: ``len()`` = recordings found, ``episode(i)`` reads the i-th."""
+@dataclass(frozen=True)
+class LocataOptions:
+    """The run-time options of a ``locata`` task (``doabench run --locata-root ... --split ... --vad ...``)."""
 
-    def __init__(self, spec: TaskSpec, locata_root: str | None = None, split: str | None = None,
-                 vad: str | None = None, source: str | None = None, **_: Any) -> None:
+    locata_root: str | None = None  # the corpus root (else $DOABENCH_LOCATA)
+    split: str | None = None  # dev or eval (overrides the spec's)
+    vad: str | None = None  # webrtc (the paper's), corpus or auto (overrides the spec's)
+    source: str | None = None  # a source name, for recordings with several
+
+
+class LocataEpisodes:
+    """Episodes of a ``locata`` task: ``len()`` = recordings found, ``episode(i)`` reads the i-th.
+
+    Scoring policy (the paper's Table II): the headline is the mean of the per-recording RMSAEs."""
+
+    Options = LocataOptions
+    headline = "recording_mean"
+
+    def __init__(self, spec: TaskSpec, **options: str | None) -> None:
+        opts = LocataOptions(**options)
+        locata_root, split, vad, source = opts.locata_root, opts.split, opts.vad, opts.source
         params = dict(spec.params.get("locata", {}))
         if "task" not in params:
             raise ConfigError(f"task spec {spec.source_file or spec.id}: a locata task needs [locata] task = N")

@@ -72,8 +72,10 @@ def build_results(spec, tracker: Tracker, tracker_text: str, tracker_options, en
         **lag_summary(rows),
     }
     recording_rows = [r for r in rows if r.get("recording") is not None]
-    if recording_rows:
-        # LOCATA (the paper's Table II): the mean of the per-recording RMSAEs is the headline.
+    # The task kind's scoring policy (LOCATA's, the paper's Table II: the mean of the per-recording
+    # RMSAEs); a kind that declares none is scored by what its episodes are.
+    policy = getattr(env.source, "headline", None) or ("recording_mean" if recording_rows else "pooled")
+    if policy == "recording_mean" and recording_rows:
         summary["recording_mean"] = {k: float(np.mean([r[k] for r in recording_rows]))
                                      for k in ("rmsae_all", "rmsae_nonsilent")}
         summary["headline"] = {"metric": "rmsae_all", "aggregate": "recording_mean",
