@@ -144,3 +144,22 @@ def test_layers_in_the_doc_match_the_contract():
     for number, layer in enumerate(layers, 1):
         names = ", ".join(f"`{n.strip()}`" for n in layer.split("|"))
         assert f"| {number} | {names} |" in text, f"docs/architecture.md's layer table lacks layer {number}: {layer}"
+
+
+def test_every_package_is_in_the_distribution():
+    """pyproject.toml lists the packages by hand (baselines/ installs as doabench_baselines and tasks/
+    as doabench.task_specs, which setuptools' discovery cannot map): every folder with an
+    ``__init__.py`` must be in the list, or a non-editable install would lack it."""
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10: the test extra's tomli
+        import tomli as tomllib
+
+    tool = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed, renamed = set(tool["packages"]), {v: k for k, v in tool["package-dir"].items()}
+    found = set()
+    for init in [*(ROOT / "doabench").rglob("__init__.py"), ROOT / "baselines" / "__init__.py",
+                 ROOT / "tasks" / "__init__.py"]:
+        folder = init.parent.relative_to(ROOT).as_posix()
+        found.add(renamed.get(folder, folder.replace("/", ".")))
+    assert found == listed, {"missing": sorted(found - listed), "not a package": sorted(listed - found)}
