@@ -34,3 +34,27 @@ def test_user_analysis_lives_in_commands_not_scripts() -> None:
 
     help_text = build_parser()._subparsers._group_actions[0].choices["compare"].format_help()
     assert "--silence" in help_text and "--hold" in help_text and "--plot" in help_text
+
+
+def test_the_moving_talker_ship_check_fails_todays_default(tmp_path, capsys) -> None:
+    """scripts/ship_check_moving.py on today's default (the committed results) as the candidate: it
+    trails walking talkers by 0.8 s, so the lag checks fail; against itself the static tasks pass."""
+    import importlib.util
+    import shutil
+
+    results = ROOT / "results"
+    tasks = ("sim-walk", "sim-turn", "sim-grid", "sim-pauses", "sim-fan")
+    if not all((results / f"{t}__cross3d_16x32.json").is_file() for t in tasks):
+        import pytest
+
+        pytest.skip("the committed results are not present")
+    for t in tasks:
+        shutil.copy(results / f"{t}__cross3d_16x32.json", tmp_path)
+    spec = importlib.util.spec_from_file_location("ship_check_moving", ROOT / "scripts" / "ship_check_moving.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main([str(tmp_path)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL  sim-walk: pooled lag 0.8 s" in out and "pass  sim-grid: 10.71 against 10.71 deg" in out
+    (tmp_path / "sim-fan__cross3d_16x32.json").unlink()
+    assert module.main([str(tmp_path)]) == 2

@@ -1,0 +1,101 @@
+"""Maintainers: does a retrained Cross3D meet the moving-talker ship targets (docs/results.md)?
+
+The targets a model must meet before it becomes the default ``cross3d``:
+
+* ``sim-walk`` and ``sim-turn``: pooled lag <= 0.3 s, and in every T60 band an RMSAE (all frames
+  and voice-active) below both ``srp-max:32x64`` and ``srp-kalman-cv:32x64`` (the constant-velocity
+  classical tracker), on the same episodes;
+* ``sim-grid``, ``sim-pauses`` and ``sim-fan``: no significant loss against today's default: the
+  95 % upper bound of the paired difference (candidate minus default, all frames, ``doabench
+  compare``'s bootstrap) at most +0.3 deg.
+
+The candidate's results come from one sweep (per-frame estimates are not needed), e.g.
+
+    DOABENCH_EPISODE_CACHE=runs/episode-cache doabench sweep --trackers cross3d:16x32 \\
+        --tracker-opt weights=baselines/weights/cross3d-16x32-moving.safetensors \\
+        --tasks sim-walk,sim-turn,sim-grid,sim-pauses,sim-fan --no-frames --out runs/ship-check
+    python scripts/ship_check_moving.py runs/ship-check
+
+and are checked against the committed results of the classical trackers and of today's default in
+``results/``. Prints one line per check and exits 0 when every one holds, 1 when one fails, 2 when
+a results file is missing.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from doabench.results.compare import Run, compare, load_run
+
+ROOT = Path(__file__).resolve().parents[1]
+MOVING_TASKS = ("sim-walk", "sim-turn")
+STATIC_TASKS = ("sim-grid", "sim-pauses", "sim-fan")
+CLASSICAL = ("srp-max_32x64", "srp-kalman-cv_32x64")
+MAX_LAG_S = 0.3
+MAX_LOSS_DEG = 0.3
+
+
+def find(folder: Path, task: str, stem: str) -> Path:
+    """The results file of ``stem`` (``cross3d_16x32``, ``srp-max_32x64``) on ``task`` in ``folder``."""
+    matches = sorted(p for p in folder.glob(f"{task}__{stem}*.json"))
+    if not matches:
+        raise FileNotFoundError(f"no results of {stem} on {task} in {folder}")
+    return matches[0]
+
+
+def band_rmsae(run: Run) -> dict[float, tuple[float, float]]:
+    """Per T60: the RMSAE pooled over the band's frames, all and voice-active (from the episode rows)."""
+    sums: dict[float, list[float]] = {}
+    for row in run.rows:
+        s = sums.setdefault(float(row["t60"]), [0.0, 0.0, 0.0, 0.0])
+        s[0] += row["n_frames"] * row["rmsae_all"] ** 2
+        s[1] += row["n_frames"]
+        if row["n_nonsilent"]:
+            s[2] += row["n_nonsilent"] * row["rmsae_nonsilent"] ** 2
+            s[3] += row["n_nonsilent"]
+    return {t60: (math.sqrt(s[0] / s[1]), math.sqrt(s[2] / s[3]) if s[3] else math.nan)
+            for t60, s in sorted(sums.items())}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("candidate", type=Path, help="folder of the candidate's results (the sweep's --out)")
+    ap.add_argument("--baseline", type=Path, default=ROOT / "results",
+                    help="folder of the classical trackers' and today's default's results (default: results/)")
+    ap.add_argument("--stem", default="cross3d_16x32", help="results-file stem of the candidate and of the default")
+    args = ap.parse_args(argv)
+    checks: list[tuple[bool, str]] = []
+    try:
+        for task in MOVING_TASKS:
+            cand = load_run(find(args.candidate, task, args.stem))
+            lag = cand.results["summary"].get("lag_s")
+            checks.append((lag is not None and lag <= MAX_LAG_S, f"{task}: pooled lag {lag} s (at most {MAX_LAG_S})"))
+            mine = band_rmsae(cand)
+            for other in CLASSICAL:
+                theirs = band_rmsae(load_run(find(args.baseline, task, other)))
+                for t60, (all_c, voice_c) in mine.items():
+                    all_o, voice_o = theirs[t60]
+                    checks.append((all_c < all_o and voice_c < voice_o,
+                                   f"{task} T60 {t60:g} s: {all_c:.2f} / {voice_c:.2f} deg against {other} "
+                                   f"{all_o:.2f} / {voice_o:.2f} (all / voice-active, below both)"))
+        for task in STATIC_TASKS:
+            comparison = compare(load_run(find(args.candidate, task, args.stem)),
+                                 load_run(find(args.baseline, task, args.stem)), only=["rmsae_all"])
+            row = comparison.pooled[0]
+            checks.append((row.high <= MAX_LOSS_DEG,
+                           f"{task}: {row.a:.2f} against {row.b:.2f} deg, paired difference {row.diff:+.2f} "
+                           f"[{row.low:+.2f}, {row.high:+.2f}] (upper bound at most +{MAX_LOSS_DEG})"))
+    except FileNotFoundError as exc:
+        print(f"ship_check_moving: {exc}", file=sys.stderr)
+        return 2
+    for ok, text in checks:
+        print(("pass  " if ok else "FAIL  ") + text)
+    failed = sum(not ok for ok, _ in checks)
+    print(f"{len(checks) - failed} of {len(checks)} checks pass" + ("" if failed else ": the candidate may ship"))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
