@@ -10,27 +10,40 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, cast, overload
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from doabench.geometry import is_tensor
+
+if TYPE_CHECKING:  # framing is imported without torch (gymnasium.make builds no features)
+    import torch
 
 DEFAULT_FS = 16000
 DEFAULT_WINDOW = 4096
 ACTIVE_FRACTION = 2.0 / 3.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class FrameSpec:
-    """Window length ``K`` (samples), hop (samples) and sample rate."""
+    """Window length ``K`` (samples), hop (samples) and sample rate.
 
-    window: int = DEFAULT_WINDOW
-    hop: int | None = None
-    fs: int = DEFAULT_FS
+    ``hop=None`` means ``3 * window // 4``; the stored ``hop`` is always a number.
+    """
+
+    window: int
+    hop: int
+    fs: int
+
+    # Written out rather than generated so that ``hop`` may be given as None while the field is an int.
+    def __init__(self, window: int = DEFAULT_WINDOW, hop: int | None = None, fs: int = DEFAULT_FS) -> None:
+        object.__setattr__(self, "window", window)
+        object.__setattr__(self, "hop", 3 * window // 4 if hop is None else hop)
+        object.__setattr__(self, "fs", fs)
+        self.__post_init__()
 
     def __post_init__(self) -> None:
-        if self.hop is None:
-            object.__setattr__(self, "hop", 3 * self.window // 4)
         from doabench.errors import ConfigError
 
         if self.window < 2 or self.hop < 1:
@@ -44,7 +57,7 @@ class FrameSpec:
     def times(self, n: int) -> np.ndarray:
         return frame_times(n, self.window, self.hop, self.fs)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, int]:
         return {"window": self.window, "hop": self.hop, "fs": self.fs}
 
 
@@ -58,7 +71,11 @@ def frame_times(n: int, window: int, hop: int, fs: int) -> np.ndarray:
     return (np.arange(n) * hop + window / 2) / fs
 
 
-def frame_signal(x, window: int, hop: int):
+@overload
+def frame_signal(x: "torch.Tensor", window: int, hop: int) -> "torch.Tensor": ...
+@overload
+def frame_signal(x: np.ndarray, window: int, hop: int) -> np.ndarray: ...
+def frame_signal(x: Any, window: int, hop: int) -> Any:
     """Split the last axis into frames: ``(..., samples)`` -> ``(..., frames, window)``.
 
     A strided view (no copy) for both numpy arrays and torch tensors.
@@ -71,7 +88,11 @@ def frame_signal(x, window: int, hop: int):
     return np.lib.stride_tricks.sliding_window_view(x, window, axis=-1)[..., ::hop, :][..., :n, :]
 
 
-def frame_vad(sample_vad, window: int, hop: int):
+@overload
+def frame_vad(sample_vad: "torch.Tensor", window: int, hop: int) -> "torch.Tensor": ...
+@overload
+def frame_vad(sample_vad: Any, window: int, hop: int) -> np.ndarray: ...
+def frame_vad(sample_vad: Any, window: int, hop: int) -> Any:
     """Per-sample VAD ``(..., samples)`` (bool or 0/1) -> per-frame VAD ``(..., frames)`` bool.
 
     A frame is active when more than 2/3 of its samples are active.
@@ -83,7 +104,7 @@ def frame_vad(sample_vad, window: int, hop: int):
     return frames.mean(-1) > ACTIVE_FRACTION
 
 
-def samples_from_frame_vad(frame_active, n_samples: int, window: int, hop: int) -> np.ndarray:
+def samples_from_frame_vad(frame_active: ArrayLike, n_samples: int, window: int, hop: int) -> np.ndarray:
     """A per-sample VAD ``(n_samples,)`` bool whose :func:`frame_vad` is ``frame_active`` ``(T,)``:
     a sample is active when any frame covering it is. Exact when an inactive frame cannot collect
     more than 2/3 active samples from its neighbours (``hop >= 2K/3``; the default 3K/4 is);
@@ -119,4 +140,4 @@ def frame_mean_directions(sample_dirs: np.ndarray, window: int, hop: int) -> np.
     c = np.concatenate([np.zeros(d.shape[:-1] + (1,)), np.cumsum(d, axis=-1)], axis=-1)
     starts = np.arange(n) * hop
     means = (c[..., starts + window] - c[..., starts]) / window
-    return normalize(np.moveaxis(means, 0, -1))
+    return cast(np.ndarray, normalize(np.moveaxis(means, 0, -1)))  # normalize keeps the array type

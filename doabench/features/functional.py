@@ -20,17 +20,19 @@ grid points) and over GCC lags, never over individual frames, pairs or grid poin
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Sequence
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 
 from doabench.errors import ConfigError, InputError
-from doabench.features.kinds import DELAY_MODES
+from doabench.features.kinds import DELAY_MODES, DelayMode
 from doabench.geometry import SPEED_OF_SOUND, grid_unit_vectors
 
 PHAT_EPS = 1e-12
-DelayMode = Literal["nearest", "exact"]
+#: Microphone pairs ``(n_pairs, 2)``: ``MicArray.pairs``, a long tensor or nested sequences.
+PairsLike = np.ndarray | torch.Tensor | Sequence[Sequence[int]]
 
 # Working-set bounds for the blocked computations. Small blocks keep intermediates in cache, which
 # matters more than GEMM size on memory-bound CPUs.
@@ -45,7 +47,7 @@ _GRAM_MAX_LAGS = 64
 # --------------------------------------------------------------------------------------------
 # Frames and spectra
 # --------------------------------------------------------------------------------------------
-def hann_window(window: int, device: torch.device | str | None = None, dtype=torch.float32) -> torch.Tensor:
+def hann_window(window: int, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32) -> torch.Tensor:
     """Periodic Hann window of ``window`` samples, shape ``(window,)``."""
     return torch.hann_window(window, periodic=True, device=device, dtype=dtype)
 
@@ -55,7 +57,7 @@ def n_bins(window: int) -> int:
     return window // 2 + 1
 
 
-def rfft_weights(window: int, device=None, dtype=torch.float64) -> torch.Tensor:
+def rfft_weights(window: int, device: torch.device | str | None = None, dtype: torch.dtype = torch.float64) -> torch.Tensor:
     """Multiplicity of each rfft bin in the full K-bin spectrum, shape ``(window // 2 + 1,)``.
 
     1 for DC and (even K) Nyquist, 2 for the others: sums over the full spectrum of a real
@@ -92,7 +94,8 @@ def windowed_rfft(frames: torch.Tensor) -> torch.Tensor:
     # the order the caller gave (elementwise ops would otherwise keep the input's strides).
     buf = torch.empty(frames.shape, dtype=frames.dtype, device=frames.device)
     torch.mul(frames, hann_window(K, frames.device, frames.dtype), out=buf)
-    return torch.fft.rfft(buf, dim=-1)
+    spectra: torch.Tensor = torch.fft.rfft(buf, dim=-1)
+    return spectra
 
 
 def phat(X: torch.Tensor, eps: float = PHAT_EPS) -> torch.Tensor:
@@ -105,7 +108,7 @@ def phat(X: torch.Tensor, eps: float = PHAT_EPS) -> torch.Tensor:
 # --------------------------------------------------------------------------------------------
 # GCC-PHAT
 # --------------------------------------------------------------------------------------------
-def _as_pairs(pairs, n_mics: int, device) -> torch.Tensor:
+def _as_pairs(pairs: PairsLike, n_mics: int, device: torch.device) -> torch.Tensor:
     p = torch.as_tensor(np.asarray(pairs), dtype=torch.long, device=device)
     if p.ndim != 2 or p.shape[1] != 2:
         raise ConfigError(f"pairs must be (n_pairs, 2), got shape {tuple(p.shape)}")
@@ -114,7 +117,7 @@ def _as_pairs(pairs, n_mics: int, device) -> torch.Tensor:
     return p
 
 
-def gram_lag_index(pairs, n_mics: int, max_lag: int) -> torch.Tensor:
+def gram_lag_index(pairs: PairsLike, n_mics: int, max_lag: int) -> torch.Tensor:
     """Where each GCC value sits in the lag-Gram tensor of :func:`lag_gram`.
 
     Returns ``(n_pairs, 2 * max_lag + 1)`` long indices into a ``(max_lag + 1, n_mics, n_mics)``
@@ -185,7 +188,7 @@ def gcc_from_phat(
 
 
 def gcc_phat(
-    X: torch.Tensor, pairs, max_lag: int, eps: float = PHAT_EPS, window: int | None = None
+    X: torch.Tensor, pairs: PairsLike, max_lag: int, eps: float = PHAT_EPS, window: int | None = None
 ) -> torch.Tensor:
     """GCC-PHAT of microphone pairs.
 
@@ -216,7 +219,7 @@ def _window_of(X: torch.Tensor, window: int | None) -> int:
 # --------------------------------------------------------------------------------------------
 # SRP-PHAT
 # --------------------------------------------------------------------------------------------
-def plane_wave_delays(positions, directions, fs: float, c: float = SPEED_OF_SOUND) -> np.ndarray:
+def plane_wave_delays(positions: ArrayLike, directions: ArrayLike, fs: float, c: float = SPEED_OF_SOUND) -> np.ndarray:
     """Arrival delays in samples of a plane wave from ``directions``.
 
     ``positions``: ``(n_mics, 3)`` metres; ``directions``: ``(..., 3)`` unit vectors towards the
@@ -224,13 +227,15 @@ def plane_wave_delays(positions, directions, fs: float, c: float = SPEED_OF_SOUN
     """
     pos = np.asarray(positions, dtype=np.float64)
     u = np.asarray(directions, dtype=np.float64)
-    return -(u @ pos.T) * (fs / c)
+    delays: np.ndarray = -(u @ pos.T) * (fs / c)
+    return delays
 
 
-def grid_delays(positions, n_theta: int, n_phi: int, fs: float, planar: bool = False, c: float = SPEED_OF_SOUND) -> np.ndarray:
+def grid_delays(positions: ArrayLike, n_theta: int, n_phi: int, fs: float, planar: bool = False, c: float = SPEED_OF_SOUND) -> np.ndarray:
     """Delays of every grid direction, ``(n_mics, n_theta * n_phi)`` float64 samples (row-major grid)."""
     u = grid_unit_vectors(n_theta, n_phi, planar).reshape(-1, 3)
-    return plane_wave_delays(positions, u, fs, c).T
+    delays: np.ndarray = plane_wave_delays(positions, u, fs, c).T
+    return delays
 
 
 def nearest_lag_index(tau: np.ndarray, pairs: np.ndarray, max_lag: int) -> np.ndarray:
@@ -246,7 +251,8 @@ def nearest_lag_index(tau: np.ndarray, pairs: np.ndarray, max_lag: int) -> np.nd
     if lag.size and np.abs(lag).max() > max_lag:
         raise ConfigError(f"grid delays need lags up to {np.abs(lag).max()}, more than max_lag {max_lag}")
     n_lags = 2 * max_lag + 1
-    return (np.arange(len(pairs))[:, None] * n_lags + lag + max_lag).T.copy()
+    index: np.ndarray = (np.arange(len(pairs))[:, None] * n_lags + lag + max_lag).T.copy()
+    return index
 
 
 def srp_from_gcc(gcc: torch.Tensor, index: torch.Tensor, n_theta: int, n_phi: int) -> torch.Tensor:
@@ -351,7 +357,7 @@ def srp_exact_from_phat(
 
 def srp_phat(
     X: torch.Tensor,
-    positions,
+    positions: ArrayLike,
     n_theta: int,
     n_phi: int,
     fs: float,

@@ -23,7 +23,7 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass
 from importlib import metadata
-from typing import Any, Callable, Iterable, NamedTuple, Sequence
+from typing import Any, Callable, Iterable, Literal, NamedTuple, Sequence
 
 from doabench.errors import ConfigError
 from doabench.framing import FrameSpec
@@ -35,6 +35,7 @@ DEFAULT_RESOLUTION = (16, 32)
 FEATURES_GROUP = "features"
 #: The SRP delay modes: pair delays rounded to whole samples (the paper's) or exact fractional ones.
 DELAY_MODES = ("nearest", "exact")
+DelayMode = Literal["nearest", "exact"]
 #: Entry-point group of feature kinds added by other packages (``name = "package.module:KIND"``).
 ENTRY_POINT_GROUP = "doabench.feature_kinds"
 

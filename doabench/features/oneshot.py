@@ -14,13 +14,15 @@ batch axis exactly when the input has one.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 
 from doabench.arrays import MicArray, get_array
 from doabench.errors import InputError
-from doabench.features.kinds import DEFAULT_RESOLUTION
+from doabench.features.kinds import DEFAULT_RESOLUTION, DelayMode
 from doabench.framing import FrameSpec
 from doabench.geometry import grid_angles
 
@@ -42,8 +44,9 @@ class SrpMaps:
         return self.colatitudes
 
 
-def srp_maps(audio, array: MicArray | str, fs: int = 16000, resolution=DEFAULT_RESOLUTION, window: int = 4096,
-             hop: int | None = None, mode: str = "nearest", normalize: bool = True,
+def srp_maps(audio: ArrayLike | torch.Tensor, array: MicArray | str, fs: int = 16000,
+             resolution: str | Sequence[int] = DEFAULT_RESOLUTION, window: int = 4096,
+             hop: int | None = None, mode: DelayMode = "nearest", normalize: bool = True,
              device: str | None = None) -> SrpMaps:
     """SRP-PHAT maps of ``audio`` for ``array`` (a built-in name, a JSON/YAML file or a MicArray).
 

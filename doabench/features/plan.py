@@ -16,7 +16,7 @@ plan to describe spaces (``gymnasium.make``) needs none.
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Protocol, Sequence, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -25,6 +25,7 @@ from doabench.arrays import MicArray, get_array
 from doabench.features.kinds import (
     DEFAULT_RESOLUTION,
     FRAMED_KINDS,
+    DelayMode,
     MAP_KINDS,
     FrameContext,
     feature_kind,
@@ -32,6 +33,10 @@ from doabench.features.kinds import (
 )
 from doabench.framing import FrameSpec, frame_signal
 from doabench.geometry import parse_resolution
+
+if TYPE_CHECKING:  # torch is imported lazily (see the module docstring)
+    from doabench.features.streaming import StreamingFeatureExtractor
+    from doabench.features.transforms import FeatureExtractor
 
 #: What an extractor pass computes when a plan asks for framed audio only: the extractor still
 #: validates the audio and frames the VAD (the observations' ``vad``), as every other plan's does.
@@ -45,6 +50,26 @@ def framed_audio(audio: np.ndarray, frame_spec: FrameSpec) -> np.ndarray:
     """
     frames = frame_signal(np.asarray(audio, np.float32), frame_spec.window, frame_spec.hop)  # (M, T, K)
     return np.moveaxis(frames, 0, 1)
+
+
+class _PlannedObservations(Protocol):
+    """What :meth:`ObservationPlan.for_tracker` uses of an :class:`~doabench.features.spec.ObservationSpec`
+    (the spec module imports this one, so it is named by its shape)."""
+
+    def with_delays(self, delays: str) -> "_PlannedObservations": ...
+
+    def plan(self, array: MicArray | str) -> "ObservationPlan": ...
+
+
+class _ObservingTracker(Protocol):
+    @property
+    def observation_spec(self) -> _PlannedObservations: ...
+
+
+def _grid(resolution: str | Sequence[int]) -> tuple[int, int]:
+    """``"16x32"`` as trackers may declare it, or ``(n_theta, n_phi)``, as a tuple. The sizes are not
+    checked here: the extractor validates them (``as_resolution``'s ConfigError)."""
+    return parse_resolution(resolution) if isinstance(resolution, str) else cast("tuple[int, int]", tuple(resolution))
 
 
 class ObservationPlan:
@@ -61,20 +86,18 @@ class ObservationPlan:
     """
 
     def __init__(self, kinds: Sequence[str], array: MicArray | str, frame_spec: FrameSpec,
-                 resolutions: Sequence[Sequence[int]] = (DEFAULT_RESOLUTION,), delays: str = "nearest",
+                 resolutions: Sequence[str | Sequence[int]] = (DEFAULT_RESOLUTION,), delays: str = "nearest",
                  spectrogram_frame_spec: FrameSpec | None = None) -> None:
         self.kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
         self.array = get_array(array)
         self.frame_spec = frame_spec
-        # "16x32" as trackers may declare it, or (n_theta, n_phi); the extractor validates the values
-        self.resolutions = tuple(parse_resolution(r) if isinstance(r, str) else tuple(r)
-                                 for r in resolutions) or (DEFAULT_RESOLUTION,)
+        self.resolutions = tuple(_grid(r) for r in resolutions) or (DEFAULT_RESOLUTION,)
         self.delays = delays
         self.spectrogram_frame_spec = spectrogram_frame_spec
-        self._extractors: dict[tuple, Any] = {}
+        self._extractors: dict[tuple[bytes, tuple[str, ...], tuple[int, int]], FeatureExtractor] = {}
 
     @classmethod
-    def for_tracker(cls, tracker: Any, array: MicArray | str, delays: str | None = None) -> "ObservationPlan":
+    def for_tracker(cls, tracker: _ObservingTracker, array: MicArray | str, delays: str | None = None) -> "ObservationPlan":
         """The observations a tracker reads (its :attr:`~doabench.Tracker.observation_spec`), on
         ``delays`` when given (another delay mode on purpose), else on the tracker's own."""
         spec = tracker.observation_spec
@@ -118,28 +141,30 @@ class ObservationPlan:
 
     def observation_space(self) -> spaces.Dict:
         """``{kind: Box}`` for each of ``kinds`` plus ``vad``: ``Discrete(2)``."""
-        space: dict[str, spaces.Space] = {k: self.space(k) for k in self.kinds}
+        space: dict[str, spaces.Space[Any]] = {k: self.space(k) for k in self.kinds}
         space["vad"] = spaces.Discrete(2)
         return spaces.Dict(space)
 
     # -- computation ------------------------------------------------------------------------------
     def extractor(self, array: MicArray | None = None, kinds: Sequence[str] | None = None,
-                  resolution: Sequence[int] | None = None):
+                  resolution: Sequence[int] | None = None) -> FeatureExtractor:
         """The (cached) :class:`~doabench.features.FeatureExtractor` of one pass for ``array``
         (default: the plan's; a recording may bring its own measured geometry)."""
         from doabench.features.transforms import FeatureExtractor
 
         array = array or self.array
         kinds = self.extractor_kinds if kinds is None else tuple(kinds)
-        resolution = self.resolution if resolution is None else tuple(resolution)
-        key = (array.positions.tobytes(), kinds, resolution)
+        grid = self.resolution if resolution is None else cast("tuple[int, int]", tuple(resolution))  # as _grid
+        key = (array.positions.tobytes(), kinds, grid)
         if key not in self._extractors:
-            self._extractors[key] = FeatureExtractor(array, kinds=kinds, resolution=resolution, mode=self.delays,
+            # the delays are checked by the extractor (ConfigError) when it computes maps
+            mode = cast(DelayMode, self.delays)
+            self._extractors[key] = FeatureExtractor(array, kinds=kinds, resolution=grid, mode=mode,
                                                      frame_spec=self.frame_spec,
                                                      spectrogram_frame_spec=self.spectrogram_frame_spec)
         return self._extractors[key]
 
-    def streaming_extractor(self, array: MicArray | None = None):
+    def streaming_extractor(self, array: MicArray | None = None) -> StreamingFeatureExtractor:
         """A :class:`~doabench.features.StreamingFeatureExtractor` of the first pass (one grid)."""
         from doabench.features.streaming import StreamingFeatureExtractor
 

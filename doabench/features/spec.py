@@ -9,7 +9,7 @@ so in its results (``features.trained_delays``).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence, cast
 
 from doabench.errors import ConfigError
 from doabench.features.kinds import DEFAULT_RESOLUTION, DELAY_MODES, check_kinds, resolution_text
@@ -40,9 +40,9 @@ class ObservationSpec:
     def __post_init__(self) -> None:
         kinds = (self.kinds,) if isinstance(self.kinds, str) else tuple(self.kinds)
         object.__setattr__(self, "kinds", check_kinds(kinds))
-        resolution = self.resolution
-        resolution = parse_resolution(resolution) if isinstance(resolution, str) else tuple(int(v) for v in resolution)
-        object.__setattr__(self, "resolution", resolution)
+        resolution = self.resolution  # the constructor also takes "16x32" or any sequence of sizes
+        grid = parse_resolution(resolution) if isinstance(resolution, str) else tuple(int(v) for v in resolution)
+        object.__setattr__(self, "resolution", grid)
         if self.delays not in DELAY_MODES:
             raise ConfigError(f"unknown delay mode {self.delays!r}: use one of {', '.join(DELAY_MODES)}")
         if not isinstance(self.frame_spec, FrameSpec) or not (
@@ -56,8 +56,9 @@ class ObservationSpec:
            frame_spec: FrameSpec | None = None, delays: str | None = None,
            spectrogram_frame_spec: FrameSpec | None = None) -> "ObservationSpec":
         """A spec with the defaults for what is None (the 16x32 grid, the paper's frames, nearest delays)."""
-        return cls(tuple(kinds), resolution or DEFAULT_RESOLUTION, frame_spec or FrameSpec(), delays or "nearest",
-                   spectrogram_frame_spec)
+        # __post_init__ turns a "16x32" string or a sequence of sizes into the (n_theta, n_phi) tuple
+        grid = cast("tuple[int, int]", resolution or DEFAULT_RESOLUTION)
+        return cls(tuple(kinds), grid, frame_spec or FrameSpec(), delays or "nearest", spectrogram_frame_spec)
 
     def with_delays(self, delays: str) -> "ObservationSpec":
         """The same observations on ``delays`` (a run that asks for other delays on purpose)."""

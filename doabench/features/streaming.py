@@ -7,7 +7,11 @@ kept (at most one window).
 """
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
 import torch
+from numpy.typing import ArrayLike
 
 from doabench.errors import InputError
 from doabench.framing import FrameSpec
@@ -55,7 +59,7 @@ class StreamingFeatureExtractor:
     concatenation over chunks equals the offline result on the whole recording.
     """
 
-    def __init__(self, *args, **kwargs) -> None:
+    def __init__(self, *args: Any, **kwargs: Any) -> None:  # FeatureExtractor's
         self.extractor = FeatureExtractor(*args, **kwargs)
         self.reset()
 
@@ -67,7 +71,9 @@ class StreamingFeatureExtractor:
         self._layout: tuple[int, bool] | None = None
         self.samples_seen = 0
 
-    def push(self, chunk, vad_chunk=None) -> dict[str, torch.Tensor]:
+    def push(
+        self, chunk: np.ndarray | torch.Tensor, vad_chunk: ArrayLike | torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         ex = self.extractor
         x, batched = prepare_audio(chunk, ex.array.n_mics)
         layout = (x.shape[0], batched)

@@ -12,15 +12,24 @@ copied lazily before), so CPU-built extractors still accept CUDA audio.
 """
 from __future__ import annotations
 
-from typing import Iterable, Mapping
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 
 from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError, InputError
 from doabench.features import functional as F
-from doabench.features.kinds import DEFAULT_RESOLUTION, EXTRACTOR_KINDS, FrameContext, feature_kind, is_plugin
+from doabench.features.kinds import (
+    DEFAULT_RESOLUTION,
+    DELAY_MODES,
+    EXTRACTOR_KINDS,
+    DelayMode,
+    FrameContext,
+    feature_kind,
+    is_plugin,
+)
 from doabench.framing import FrameSpec, frame_vad
 from doabench.geometry import SPEED_OF_SOUND, parse_resolution
 
@@ -29,7 +38,7 @@ from doabench.geometry import SPEED_OF_SOUND, parse_resolution
 _STEER_CACHE_BYTES = 256 << 20
 
 
-def as_resolution(resolution) -> tuple[int, int]:
+def as_resolution(resolution: str | Sequence[int]) -> tuple[int, int]:
     """``(n_theta, n_phi)`` from a pair or a ``"16x32"`` string."""
     if isinstance(resolution, str):
         return parse_resolution(resolution)
@@ -41,7 +50,7 @@ def as_resolution(resolution) -> tuple[int, int]:
     return n_theta, n_phi
 
 
-def prepare_audio(audio, n_mics: int, min_samples: int = 0) -> tuple[torch.Tensor, bool]:
+def prepare_audio(audio: np.ndarray | torch.Tensor, n_mics: int, min_samples: int = 0) -> tuple[torch.Tensor, bool]:
     """Validate audio and return ``((batch, n_mics, samples) float32 tensor, was_batched)``.
 
     Accepts ``(n_mics, samples)`` or ``(batch, n_mics, samples)``, numpy or torch (device kept).
@@ -71,7 +80,9 @@ def prepare_audio(audio, n_mics: int, min_samples: int = 0) -> tuple[torch.Tenso
     return x, batched
 
 
-def prepare_vad(sample_vad, batch: int, samples: int, batched: bool, device) -> torch.Tensor | None:
+def prepare_vad(
+    sample_vad: ArrayLike | torch.Tensor | None, batch: int, samples: int, batched: bool, device: torch.device
+) -> torch.Tensor | None:
     """Validate a per-sample VAD; returns ``(batch, samples)`` bool on ``device`` or None."""
     if sample_vad is None:
         return None
@@ -121,6 +132,9 @@ class GCCPHAT(_Transform):
     ``(batch, frames, n_pairs, 2 * max_lag + 1)`` float32, silent frames zeroed.
     """
 
+    pairs: torch.Tensor  # buffers (register_buffer), declared for the type checker
+    index: torch.Tensor
+
     def __init__(self, array: MicArray | str, frame_spec: FrameSpec = FrameSpec(), c: float = SPEED_OF_SOUND) -> None:
         super().__init__()
         self.array = get_array(array)
@@ -161,17 +175,21 @@ class SRPPHAT(_Transform):
     ``(batch, frames, n_theta, n_phi)`` float32, silent frames zeroed.
     """
 
+    tau: torch.Tensor  # buffers (register_buffer), declared for the type checker
+    index: torch.Tensor | None
+    steer: torch.Tensor | None
+
     def __init__(
         self,
         array: MicArray | str,
-        resolution=DEFAULT_RESOLUTION,
+        resolution: str | Sequence[int] = DEFAULT_RESOLUTION,
         frame_spec: FrameSpec = FrameSpec(),
-        mode: F.DelayMode = "nearest",
+        mode: DelayMode = "nearest",
         normalize: bool = True,
         c: float = SPEED_OF_SOUND,
     ) -> None:
-        if mode not in F.DELAY_MODES:
-            raise ConfigError(f"unknown delay mode {mode!r}: use one of {', '.join(F.DELAY_MODES)}")
+        if mode not in DELAY_MODES:
+            raise ConfigError(f"unknown delay mode {mode!r}: use one of {', '.join(DELAY_MODES)}")
         super().__init__()
         self.array = get_array(array)
         self.resolution = as_resolution(resolution)
@@ -183,7 +201,8 @@ class SRPPHAT(_Transform):
         n_theta, n_phi = self.resolution
         tau = F.grid_delays(self.array.positions, n_theta, n_phi, frame_spec.fs, self.planar, c)
         self.register_buffer("tau", torch.from_numpy(tau), persistent=False)  # (n_mics, n_grid) samples, float64
-        index = steer = None
+        index: torch.Tensor | None = None
+        steer: torch.Tensor | None = None
         if mode == "nearest":
             index = torch.from_numpy(F.nearest_lag_index(tau, self.array.pairs, self.gcc.max_lag))
         else:
@@ -201,6 +220,7 @@ class SRPPHAT(_Transform):
             return F.srp_exact_from_phat(W, self.tau, self.frame_spec.window, n_theta, n_phi, self.steer)
         if gcc is None:
             gcc = self.gcc.from_phat(W)
+        assert self.index is not None  # built for the nearest mode
         return F.srp_from_gcc(gcc, self.index, n_theta, n_phi)
 
     def forward(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
@@ -236,8 +256,8 @@ class FeatureExtractor(_Transform):
         self,
         array: MicArray | str,
         kinds: Iterable[str] = EXTRACTOR_KINDS,
-        resolution=DEFAULT_RESOLUTION,
-        mode: F.DelayMode = "nearest",
+        resolution: str | Sequence[int] = DEFAULT_RESOLUTION,
+        mode: DelayMode = "nearest",
         frame_spec: FrameSpec = FrameSpec(),
         spectrogram_frame_spec: FrameSpec | None = None,
         c: float = SPEED_OF_SOUND,
@@ -296,7 +316,9 @@ class FeatureExtractor(_Transform):
         return shapes
 
     # -- computation ---------------------------------------------------------------------------
-    def _frame_vad(self, vad: torch.Tensor | None, spec: FrameSpec, batch: int, samples: int, device) -> torch.Tensor:
+    def _frame_vad(
+        self, vad: torch.Tensor | None, spec: FrameSpec, batch: int, samples: int, device: torch.device
+    ) -> torch.Tensor:
         if vad is None:
             return torch.ones((batch, spec.n_frames(samples)), dtype=torch.bool, device=device)
         return frame_vad(vad, spec.window, spec.hop)
@@ -318,7 +340,10 @@ class FeatureExtractor(_Transform):
         if main and self._main_kinds:
             X = F.stft_frames(x, fs_main.window, fs_main.hop)
             W = F.phat(X)
-            gcc = self.gcc.from_phat(W) if ("gcc" in self.kinds or (self.srp and self.srp.mode == "nearest")) else None
+            gcc = None
+            if "gcc" in self.kinds or (self.srp is not None and self.srp.mode == "nearest"):
+                assert self.gcc is not None  # built for the gcc kind and with every srp
+                gcc = self.gcc.from_phat(W)
             if self.srp is not None:
                 maps = F.normalize_maps(self.srp.raw_from_phat(W, gcc))
                 if "srp" in self.kinds:
@@ -326,10 +351,14 @@ class FeatureExtractor(_Transform):
                 if "srp_max" in self.kinds:
                     out["srp_max"] = F.zero_silent(F.map_maxima(maps, self.srp.planar), vad)
             if "gcc" in self.kinds:
+                assert gcc is not None  # computed just above for the gcc kind
                 out["gcc"] = F.zero_silent(gcc, vad)
             for name in self.plugin_kinds:
-                out[name] = F.zero_silent(feature_kind(name).compute(x, vad, fs_main, self.array), vad)
+                compute = feature_kind(name).compute
+                assert compute is not None  # plugin_kinds are the kinds that bring one
+                out[name] = F.zero_silent(compute(x, vad, fs_main, self.array), vad)
         if "spectrogram" in self.kinds:
+            assert self.spectrogram is not None  # built for the spectrogram kind
             spec = self.spectrogram_frame_spec
             if self.separate_spectrogram_grid and separate:
                 vad_s = self._frame_vad(sample_vad, spec, B, S, x.device)
@@ -339,17 +368,19 @@ class FeatureExtractor(_Transform):
                 if X is None:
                     X = F.stft_frames(x, spec.window, spec.hop)
                 out["spectrogram"] = self.spectrogram.from_spectra(X, vad)
-        if main:
+        if vad is not None:  # computed exactly when main
             out["vad"] = vad
         return {k: out[k] for k in self.feature_shapes() if k in out}
 
-    def forward(self, audio, sample_vad=None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, audio: np.ndarray | torch.Tensor, sample_vad: ArrayLike | torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         x, batched = prepare_audio(audio, self.array.n_mics, self.min_samples)
         vad = prepare_vad(sample_vad, x.shape[0], x.shape[-1], batched, x.device)
         out = self.compute(x, vad)
         return out if batched else {k: v[0] for k, v in out.items()}
 
-    def empty(self, batch: int, device=None) -> dict[str, torch.Tensor]:
+    def empty(self, batch: int, device: torch.device | str | None = None) -> dict[str, torch.Tensor]:
         """Zero-frame outputs ``(batch, 0, ...)`` with the right trailing shapes and dtypes."""
         return {
             k: torch.zeros((batch, 0) + s, dtype=torch.bool if k.endswith("vad") else torch.float32, device=device)
