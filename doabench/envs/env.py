@@ -27,6 +27,7 @@ from typing import Any, Sequence
 import gymnasium
 import numpy as np
 from gymnasium import spaces
+from numpy.typing import ArrayLike
 
 from doabench.arrays import MicArray, get_array
 from doabench.envs.registry import get_task_spec
@@ -58,6 +59,7 @@ class DoaEnv(gymnasium.Env):
     """
 
     metadata = {"render_modes": []}
+    observation_space: spaces.Dict  # the plan's: {kind: Box} plus vad
 
     def __init__(self, task: str | TaskSpec, features: Sequence[str] = ("srp", "srp_max"),
                  resolution: tuple[int, int] | str = DEFAULT_RESOLUTION, delays: str = "nearest",
@@ -80,7 +82,7 @@ class DoaEnv(gymnasium.Env):
         self.device = device
         self.array: MicArray = get_array(self.spec_task.array)
         self.source = make_episode_source(self.spec_task, device=device, **source_options)
-        self._cache: OrderedDict[int, tuple[Episode, dict, dict]] = OrderedDict()
+        self._cache: OrderedDict[int, tuple[Episode, dict[str, np.ndarray], dict[str, np.ndarray]]] = OrderedDict()
         self._cache_size = max(1, cache_size)
         # the one pipeline from an episode's audio to its observations, spaces included
         self.plan = ObservationPlan(self.features, self.array, self.frame_spec, (self.resolution,), delays)
@@ -151,7 +153,9 @@ class DoaEnv(gymnasium.Env):
         return obs
 
     # -- gymnasium API ----------------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
         super().reset(seed=seed)
         options = options or {}
         repeat = None
@@ -178,7 +182,7 @@ class DoaEnv(gymnasium.Env):
             info["repeat"] = repeat
         return self._observation(0), info
 
-    def step(self, action):
+    def step(self, action: ArrayLike) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         if self._episode_index is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
         if self._t >= self._n_frames:

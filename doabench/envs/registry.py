@@ -17,7 +17,7 @@ import os
 import sys
 from importlib import metadata, resources
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import gymnasium
 
@@ -93,7 +93,7 @@ def _load_file_at_startup(path: Path) -> None:
         register_task(spec)
 
 
-def register_task(spec: TaskSpec | dict | str | Path) -> list[TaskSpec]:
+def register_task(spec: TaskSpec | dict[str, Any] | str | Path) -> list[TaskSpec]:
     """Register a task (a TaskSpec, a spec mapping, or a TOML file) and its Gymnasium id.
 
     Returns the specs registered (a grid file registers its cells and itself).

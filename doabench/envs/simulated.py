@@ -5,13 +5,16 @@ Registered through the ``doabench.task_kinds`` entry-point group (pyproject.toml
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from doabench.arrays import get_array
 from doabench.envs.sources import episode_seed, make_speech_source
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, NotFoundError
+
+if TYPE_CHECKING:
+    from doabench.acoustics.scenes import Scene, SceneDistribution
 
 
 @dataclass(frozen=True)
@@ -64,7 +67,7 @@ class SimulatedEpisodes:
         self._per_cell = spec.episodes // len(self._cells)
 
     @staticmethod
-    def _distribution(spec: TaskSpec, overrides: dict[str, Any] | None):
+    def _distribution(spec: TaskSpec, overrides: dict[str, Any] | None) -> SceneDistribution:
         from doabench.acoustics.scenes import SceneDistribution
 
         return SceneDistribution.from_dict({**dict(spec.params.get("scene", {})), **(overrides or {})})
@@ -72,7 +75,7 @@ class SimulatedEpisodes:
     def __len__(self) -> int:
         return self._per_cell * len(self._cells)
 
-    def _locate(self, index: int):
+    def _locate(self, index: int) -> tuple[SceneDistribution, TaskSpec, int]:
         if not 0 <= index < len(self):
             raise NotFoundError(f"task {self.spec.id!r} has {len(self)} episodes; episode {index} does not exist")
         cell_index, dist, cell_spec = self._cells[index // self._per_cell]
@@ -85,7 +88,7 @@ class SimulatedEpisodes:
         how many episodes a cell has)."""
         return self._locate(index)[2]
 
-    def scene(self, index: int):
+    def scene(self, index: int) -> Scene:
         from doabench.acoustics.scenes import sample_scene
 
         dist, _, seed = self._locate(index)

@@ -22,13 +22,16 @@ import dataclasses
 import difflib
 import inspect
 from importlib import metadata
-from typing import Any, Callable, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, NotFoundError
+
+if TYPE_CHECKING:
+    from doabench.corpora.speech import SpeechSource
 
 
 class EpisodeSource(Protocol):
@@ -131,7 +134,7 @@ def episode_seed(base_seed: int, *keys: int) -> int:
     return int((int(state[0]) << 31) ^ int(state[1]))
 
 
-def make_speech_source(speech: dict[str, Any], librispeech: str | None = None):
+def make_speech_source(speech: dict[str, Any], librispeech: str | None = None) -> SpeechSource:
     """The speech source a task's ``[speech]`` section asks for."""
     from doabench.corpora import speech as speech_mod
 

@@ -22,6 +22,7 @@ cell (fixed T60 and SNR) and the grid task itself, whose episodes are the cells'
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
@@ -29,9 +30,9 @@ from typing import Any, Mapping
 from doabench.errors import ConfigError
 from doabench.framing import FrameSpec
 
-try:
+if sys.version_info >= (3, 11):
     import tomllib
-except ModuleNotFoundError:  # Python 3.10: the same parser, published as tomli (a dependency there)
+else:  # Python 3.10: the same parser, published as tomli (a dependency there)
     import tomli as tomllib
 
 REQUIRED = ("id", "version", "kind")

@@ -70,8 +70,9 @@ def resolve_delays(tracker: "Tracker", requested: str | None) -> tuple[str, str 
 class Tracker:
     """Base class of every tracker. See the module docstring for the contract."""
 
-    #: registry id, set by :func:`doabench.register_tracker` (or by the subclass)
-    name: ClassVar[str] = ""
+    #: registry id, set by :func:`doabench.register_tracker` (or by the subclass); an instance of a
+    #: class loaded by its path gets the id it was made from (not a ClassVar for that reason)
+    name: str = ""
     #: bump when the tracker's outputs change for the same input and weights
     version: ClassVar[str] = "1"
     #: causal trackers are run frame by frame with :meth:`step`; others with :meth:`track`

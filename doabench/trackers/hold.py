@@ -35,4 +35,5 @@ def hold_in_silences(directions: np.ndarray, vad: np.ndarray, hold: int) -> np.n
     """``directions`` ``(frames, 3)`` with every frame that ends a run of ``>= hold`` voice-inactive
     frames replaced by the last frame before it that did not (:func:`held_frame_index`); frames
     before the first voice-active one are left as they are. ``vad`` ``(frames,)`` bool."""
-    return np.asarray(directions)[held_frame_index(vad, hold)]
+    held: np.ndarray = np.asarray(directions)[held_frame_index(vad, hold)]
+    return held

@@ -9,7 +9,7 @@ subspace methods are usually run on; ``srp-pra`` defaults to the full band).
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Mapping, cast
 
 import numpy as np
 
@@ -44,7 +44,7 @@ class _PyroomacousticsTracker(Tracker):
         import pyroomacoustics as pra
 
         fs = self.frame_spec.fs
-        el, az = grid_angles(*self._resolution, planar=array.planar)
+        el, az = grid_angles(*self._resolution, planar=bool(array.planar))
         # pyroomacoustics builds its 3-D grid from every (azimuth, colatitude) combination
         self._doa = pra.doa.algorithms[self.algorithm](
             array.positions.T, fs, self.nfft, c=SPEED_OF_SOUND, num_src=1, dim=3, azimuth=az, colatitude=el)
@@ -58,7 +58,8 @@ class _PyroomacousticsTracker(Tracker):
         snapshots = frame_signal(observation["audio"], self.nfft, self.nfft // 2) * self._window  # (M, S, nfft)
         X = np.fft.rfft(snapshots, axis=-1).transpose(0, 2, 1)  # (M, F, S), the layout pyroomacoustics takes
         self._doa.locate_sources(X, num_src=1, freq_range=self._band)
-        self._last = angles_to_unit(np.asarray(self._doa.colatitude_recon)[0], np.asarray(self._doa.azimuth_recon)[0])
+        direction = angles_to_unit(np.asarray(self._doa.colatitude_recon)[0], np.asarray(self._doa.azimuth_recon)[0])
+        self._last = cast(np.ndarray, direction)  # angles_to_unit returns the type of its inputs
         return self._last
 
 

@@ -15,7 +15,7 @@ import difflib
 import importlib
 import importlib.util
 from importlib import metadata
-from typing import Any, Callable, Mapping, TypeVar
+from typing import Any, Callable, Mapping, TypeVar, overload
 
 from doabench.errors import ConfigError, DoabenchError, NotFoundError, TrackerError
 from doabench.trackers.base import Tracker
@@ -27,6 +27,10 @@ _ENTRY_POINTS_LOADED = False
 _BUILTINS_LOADED = False
 
 
+@overload
+def register_tracker(name: str, cls: None = None) -> Callable[[T], T]: ...
+@overload
+def register_tracker(name: str, cls: type[Tracker]) -> type[Tracker]: ...
 def register_tracker(name: str, cls: type[Tracker] | None = None) -> Callable[[T], T] | type[Tracker]:
     """Register a Tracker subclass under ``name``; usable as ``@register_tracker("id")``."""
 
@@ -188,7 +192,7 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
     else:
         canonical = f"{name}:{spec}" if spec else name
     try:
-        params = inspect.signature(cls).parameters
+        params: Mapping[str, inspect.Parameter] = inspect.signature(cls).parameters
     except (TypeError, ValueError):
         params = {}
     for key in list(options):
@@ -198,13 +202,13 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
             del options[key]
     weights = options.get("weights")
     if weights is not None and str(weights).lower() not in ("random", "none", "false", "") and tracker.weights_hash():
-        rest = {k: v for k, v in options.items() if k != "weights"}
+        others = {k: v for k, v in options.items() if k != "weights"}
         import warnings
 
         try:
             with warnings.catch_warnings():  # a model without default weights warns; here that is the answer
                 warnings.simplefilter("ignore")
-                default = make_tracker(canonical, **rest).weights_hash()
+                default = make_tracker(canonical, **others).weights_hash()
         except DoabenchError:
             default = None
         if default == tracker.weights_hash():

@@ -31,7 +31,7 @@ class _SrpGridTracker(Tracker):
         return self._resolution
 
     def reset(self, array: MicArray, **context: Any) -> None:
-        self._grid = grid_unit_vectors(*self._resolution, planar=array.planar).reshape(-1, 3)
+        self._grid = grid_unit_vectors(*self._resolution, planar=bool(array.planar)).reshape(-1, 3)
 
     def _argmax_direction(self, srp: np.ndarray) -> np.ndarray | None:
         """Unit vector of the map's maximum, or None for an all-zero (silent) map."""
@@ -39,7 +39,10 @@ class _SrpGridTracker(Tracker):
             raise ConfigError(f"tracker {self.name!r} expects {self._resolution} maps, got {srp.shape}")
         if not np.any(srp):
             return None
-        return self._grid[int(np.argmax(srp))]
+        if self._grid is None:  # what indexing None raised, with the reason
+            raise TypeError(f"tracker {self.name!r}: call reset(array) before step()")
+        direction: np.ndarray = self._grid[int(np.argmax(srp))]
+        return direction
 
 
 @register_tracker("srp-max")
@@ -50,7 +53,7 @@ class SrpMaxTracker(_SrpGridTracker):
 
     def reset(self, array: MicArray, **context: Any) -> None:
         super().reset(array, **context)
-        self._last = _INITIAL_DIRECTION.copy()
+        self._last: np.ndarray = _INITIAL_DIRECTION.copy()
 
     def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         d = self._argmax_direction(observation["srp"])
@@ -84,7 +87,7 @@ class SrpKalmanTracker(_SrpGridTracker):
 
     def reset(self, array: MicArray, **context: Any) -> None:
         super().reset(array, **context)
-        self._x = _INITIAL_DIRECTION.copy()
+        self._x: np.ndarray = _INITIAL_DIRECTION.copy()
         self._p = 1.0  # isotropic covariance (scalar times identity) keeps the filter in closed form
         self._initialised = False
 
@@ -138,7 +141,7 @@ class SrpKalmanCvTracker(_SrpGridTracker):
 
     def reset(self, array: MicArray, **context: Any) -> None:
         super().reset(array, **context)
-        self._x = np.concatenate([_INITIAL_DIRECTION, np.zeros(3)])
+        self._x: np.ndarray = np.concatenate([_INITIAL_DIRECTION, np.zeros(3)])
         self._p = np.eye(6)
         self._initialised = False
 
@@ -154,7 +157,7 @@ class SrpKalmanCvTracker(_SrpGridTracker):
                 self._p = np.diag([self.r] * 3 + [self.q * 10] * 3)
                 self._initialised = True
             else:
-                u = self._x[:3] / max(np.linalg.norm(self._x[:3]), 1e-12)
+                u: np.ndarray = self._x[:3] / max(np.linalg.norm(self._x[:3]), 1e-12)
                 r = self.r if float(z @ u) >= self.gate_cos else self.r * self.gate_factor
                 s = self._p[:3, :3] + r * np.eye(3)
                 gain = np.linalg.solve(s, self._p[:3, :]).T  # (6, 3) = P H^T S^-1 (S symmetric)
@@ -163,4 +166,5 @@ class SrpKalmanCvTracker(_SrpGridTracker):
         u = self._x[:3] / max(np.linalg.norm(self._x[:3]), 1e-12)
         self._x[:3] = u
         self._x[3:] -= (self._x[3:] @ u) * u
-        return u.copy()
+        direction: np.ndarray = u.copy()
+        return direction
