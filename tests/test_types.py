@@ -15,20 +15,31 @@ except ModuleNotFoundError:  # Python 3.10
 ROOT = Path(__file__).resolve().parents[1]
 
 
+# What --strict turns on, per module (warn_redundant_casts is global). pyproject.toml spells them out:
+# `strict = true` in an override would apply them to every module.
+STRICT_FLAGS = ("disallow_any_generics", "disallow_subclassing_any", "disallow_untyped_calls", "disallow_untyped_defs",
+                "disallow_incomplete_defs", "check_untyped_defs", "disallow_untyped_decorators", "warn_unused_ignores",
+                "warn_return_any", "no_implicit_reexport", "strict_equality", "extra_checks")
+
+
+def mypy_config() -> dict:
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["mypy"]
+
+
 def strict_modules() -> list[str]:
-    """The modules pyproject.toml's mypy overrides mark strict (``pkg.*`` patterns come with ``pkg``)."""
-    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    overrides = config["tool"]["mypy"]["overrides"]
+    """The modules of pyproject.toml's strict mypy override (``pkg.*`` patterns come with ``pkg``)."""
     modules: list[str] = []
-    for section in overrides:
-        if section.get("strict"):
+    for section in mypy_config()["overrides"]:
+        if section.get("disallow_untyped_defs"):
+            assert all(section.get(flag) for flag in STRICT_FLAGS), section
             names = section["module"]
             modules += [names] if isinstance(names, str) else names
     return [m for m in modules if not m.endswith(".*")]
 
 
 def test_strict_packages_are_listed():
-    assert "doabench.features" in strict_modules()
+    assert mypy_config().get("warn_redundant_casts")
+    assert {"doabench.features", "doabench.envs", "doabench.trackers"} <= set(strict_modules())
 
 
 def test_mypy_strict_packages():
