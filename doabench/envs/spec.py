@@ -22,7 +22,6 @@ cell (fixed T60 and SNR) and the grid task itself, whose episodes are the cells'
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
@@ -30,9 +29,9 @@ from typing import Any, Mapping
 from doabench.errors import ConfigError
 from doabench.framing import FrameSpec
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # Python 3.10: the same parser, published as tomli (a dependency there)
+try:
+    import tomllib  # type: ignore[import-not-found, unused-ignore]  # mypy checks as Python 3.10, which has none
+except ModuleNotFoundError:  # Python 3.10: the same parser, published as tomli (a dependency there)
     import tomli as tomllib
 
 REQUIRED = ("id", "version", "kind")
