@@ -39,7 +39,7 @@ def strict_modules() -> list[str]:
 
 def test_strict_packages_are_listed():
     assert mypy_config().get("warn_redundant_casts")
-    assert {"doabench.features", "doabench.envs", "doabench.trackers"} <= set(strict_modules())
+    assert {"doabench.features", "doabench.envs", "doabench.trackers", "doabench.runner"} <= set(strict_modules())
 
 
 def test_mypy_strict_packages():

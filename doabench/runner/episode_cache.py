@@ -16,11 +16,14 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeGuard
 
 import numpy as np
 
 from doabench.arrays import MicArray
+from doabench.envs.env import DoaEnv
+from doabench.envs.sources import EpisodeSource
+from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.results.files import atomic_path
 
@@ -28,10 +31,20 @@ ENV_VAR = "DOABENCH_EPISODE_CACHE"
 _OPTIONAL = ("sample_valid", "input_vad")
 
 
+class SeededSource(EpisodeSource, Protocol):
+    """An episode source whose episodes are a pure function of their seed (a simulator's)."""
+
+    def episode_seed(self, index: int) -> int: ...
+
+
+def _is_seeded(source: EpisodeSource) -> TypeGuard[SeededSource]:
+    return hasattr(source, "episode_seed")
+
+
 class CachedEpisodes:
     """Wraps an episode source: ``episode(i)`` loads ``i`` from ``folder`` or renders and stores it."""
 
-    def __init__(self, source: Any, folder: str | Path, spec: Any) -> None:
+    def __init__(self, source: SeededSource, folder: str | Path, spec: TaskSpec) -> None:
         from doabench._version import __version__
 
         self.source, self.folder = source, Path(folder)
@@ -90,12 +103,13 @@ def _load(path: Path) -> Episode:
                        **{name: z[name] for name in _OPTIONAL if name in z})
 
 
-def cache_episodes(env: Any) -> None:
+def cache_episodes(env: DoaEnv) -> None:
     """Wrap ``env``'s episode source in a :class:`CachedEpisodes` when ``DOABENCH_EPISODE_CACHE``
     names a folder and the task is simulated (its source describes a simulator)."""
     folder = os.environ.get(ENV_VAR)
     if not folder or isinstance(env.source, CachedEpisodes):
         return
-    if "simulator" not in env.source.describe() or not hasattr(env.source, "episode_seed"):
+    source = env.source
+    if "simulator" not in source.describe() or not _is_seeded(source):
         return
-    env.source = CachedEpisodes(env.source, folder, env.spec_task)
+    env.source = CachedEpisodes(source, folder, env.spec_task)

@@ -10,7 +10,7 @@ import contextlib
 import hashlib
 import json
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Mapping
 
 from doabench.errors import InputError
 from doabench.results.files import append_line, exclusive_lock, to_json, write_text
@@ -32,12 +32,12 @@ def run_lock(partial_path: str | Path) -> Iterator[None]:
         yield
 
 
-def config_hash(config: dict) -> str:
+def config_hash(config: Mapping[str, Any]) -> str:
     """The 16-hex-digit hash of a run's configuration that heads its journal."""
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def load_journal(path: str | Path | None, config_hash: str) -> dict[int, dict]:
+def load_journal(path: str | Path | None, config_hash: str) -> dict[int, dict[str, Any]]:
     """Finished episodes of an interrupted run with the same configuration.
 
     The journal is rewritten with its valid lines only, so a line cut by a crash is dropped (that
@@ -47,7 +47,7 @@ def load_journal(path: str | Path | None, config_hash: str) -> dict[int, dict]:
     if not path:
         return {}
     path = Path(path)
-    done: dict[int, dict] = {}
+    done: dict[int, dict[str, Any]] = {}
     keep: list[str] = []
     if path.exists():
         try:

@@ -14,12 +14,13 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence, TypeVar, cast
 
 import numpy as np
 
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
+from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, DoabenchError, TrackerError
 from doabench.geometry import normalize
 from doabench.results.files import to_json
@@ -29,6 +30,11 @@ from doabench.runner.episode_cache import cache_episodes
 from doabench.runner.selection import select_episodes
 from doabench.runner.summary import build_results, episode_row, score
 from doabench.trackers.base import Tracker
+
+T = TypeVar("T")
+#: ``progress`` of a run: a tqdm bar (True), none (False), or ``fn(episode index, its journal record)``
+#: called as each episode finishes
+Progress = bool | Callable[[int, dict[str, Any]], object]
 
 
 def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
@@ -44,7 +50,8 @@ def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
         raise TrackerError(f"tracker {tracker.name!r} returned a non-finite direction {a} at frame {frame}")
     if not np.any(a):
         raise TrackerError(f"tracker {tracker.name!r} returned a zero vector at frame {frame}")
-    return normalize(a)  # scaled by its largest component first: [1e200, 0, 0] is the x axis, not 0
+    # scaled by its largest component first: [1e200, 0, 0] is the x axis, not 0; normalize keeps the array type
+    return cast(np.ndarray, normalize(a))
 
 
 def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
@@ -56,10 +63,10 @@ def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
     if bad.any():
         raise TrackerError(f"tracker {tracker.name!r} returned a non-finite or zero direction at frame "
                            f"{int(np.argmax(bad))}")
-    return normalize(a)
+    return cast(np.ndarray, normalize(a))  # normalize keeps the array type
 
 
-def guarded(tracker: Tracker, what: str, fn: Callable, *args: Any) -> Any:
+def guarded(tracker: Tracker, what: str, fn: Callable[..., T], *args: Any) -> T:
     """Call a tracker method; an exception it raises becomes a one-line TrackerError naming it."""
     try:
         return fn(*args)
@@ -105,7 +112,7 @@ def step_frame(tracker: Tracker, observation: Any, t: int, where: str = "") -> n
 
 
 def track_frames(tracker: Tracker, n_frames: int, first: Any, advance: Callable[[int, np.ndarray], Any],
-                 offline: Callable[[], dict], where: str = "") -> np.ndarray:
+                 offline: Callable[[], Mapping[str, np.ndarray]], where: str = "") -> np.ndarray:
     """A reset tracker's ``(n_frames, 3)`` checked unit directions.
 
     Causal trackers: ``step(obs)`` per frame, starting from observation ``first``;
@@ -156,7 +163,7 @@ def run_episode(env: DoaEnv, tracker: Tracker, index: int) -> dict[str, Any]:
 
 def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
                  episodes: int | Sequence[int] | None, cells: Sequence[str] | None, device: str | None,
-                 progress: bool | Callable, keep_frames: bool, env_options: dict[str, Any]) -> dict[str, Any]:
+                 progress: Progress, keep_frames: bool, env_options: dict[str, Any]) -> dict[str, Any]:
     """Run the :class:`~doabench.runner.spec.RunSpec` ``spec`` with ``tracker`` (its instance) and
     return the results dictionary. ``partial_path``: the resume journal (None: no journal), held
     locked by the caller. ``wall_time_s`` adds up every invocation that contributed episodes."""
@@ -186,7 +193,9 @@ def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
     return results
 
 
-def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep_frames, wall_start) -> list[dict]:
+def _run_indices(env: DoaEnv, tracker: Tracker, spec: TaskSpec, indices: list[int], done: dict[int, dict[str, Any]],
+                 partial_path: str | Path | None, progress: Progress, keep_frames: bool,
+                 wall_start: float) -> list[dict[str, Any]]:
     """Run the episodes not yet in ``done``, journalling each; returns the records in index order."""
     last = wall_start
     bar = None
@@ -199,8 +208,8 @@ def _run_indices(env, tracker, spec, indices, done, partial_path, progress, keep
             continue
         ep = run_episode(env, tracker, index)
         scored = score(ep)
-        record = {"row": episode_row(index, ep), "errors": scored.errors, "az_errors": scored.az_errors,
-                  "vad": scored.vad, "planar": ep["planar"]}
+        record: dict[str, Any] = {"row": episode_row(index, ep), "errors": scored.errors,
+                                  "az_errors": scored.az_errors, "vad": scored.vad, "planar": ep["planar"]}
         if keep_frames:
             record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"],
                                 "vad": ep["vad"]}

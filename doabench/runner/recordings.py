@@ -4,9 +4,19 @@ tracker calls and checks (:mod:`doabench.runner.loop`), in memory (:func:`track_
 chunk by chunk with memory bounded by the chunk size (:func:`track_stream`)."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any, Iterable, Iterator
+
 import numpy as np
 
+from doabench.arrays import MicArray
 from doabench.runner.loop import check_directions, guarded, step_frame, track_frames
+from doabench.trackers.base import Tracker
+
+if TYPE_CHECKING:
+    from doabench.recording import Recording, StreamingWebrtcVad
+
+#: ``(audio (n_mics, n), sample_vad (n,) or None)``: one chunk of a recording, in order
+Chunk = tuple[np.ndarray, np.ndarray | None]
 
 
 def recording_vad(audio: np.ndarray, fs: int) -> np.ndarray:
@@ -18,8 +28,8 @@ def recording_vad(audio: np.ndarray, fs: int) -> np.ndarray:
     return webrtc_vad(mono / peak, fs)[0]
 
 
-def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | None, delays: str | None = None,
-                    device: str | None = None) -> dict[str, np.ndarray]:
+def track_recording(tracker: Tracker, array: MicArray, audio: np.ndarray, sample_vad: np.ndarray | None,
+                    delays: str | None = None, device: str | None = None) -> dict[str, np.ndarray]:
     """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording, on
     the tracker's own observations (``delays``: another delay mode on purpose)."""
     from doabench.features.plan import ObservationPlan
@@ -29,7 +39,7 @@ def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | 
     n = len(feats["vad"])
     guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
 
-    def frame(t: int):
+    def frame(t: int) -> dict[str, Any] | None:
         return {**{k: v[t] for k, v in feats.items()}, "vad": int(feats["vad"][t])} if t < n else None
 
     # the runner's loop: the same step/track calls and checks as `doabench run`
@@ -37,7 +47,8 @@ def track_recording(tracker, array, audio: np.ndarray, sample_vad: np.ndarray | 
     return {"times": spec.times(n), "directions": directions, "vad": feats["vad"].astype(bool)}
 
 
-def track_stream(tracker, array, chunks, delays: str | None = None, device: str | None = None) -> dict[str, np.ndarray]:
+def track_stream(tracker: Tracker, array: MicArray, chunks: Iterable[Chunk], delays: str | None = None,
+                 device: str | None = None) -> dict[str, np.ndarray]:
     """:func:`track_recording` on a recording given as chunks, in memory bounded by the chunk size.
 
     ``chunks``: iterable of ``(audio (n_mics, n), sample_vad (n,) | None)`` in order. Features
@@ -89,7 +100,8 @@ def track_stream(tracker, array, chunks, delays: str | None = None, device: str 
     return {"times": spec.times(n), "directions": out, "vad": vad_all.astype(bool)}
 
 
-def recording_chunks(rec, vad: str, block: int | None = None, sample_vad: np.ndarray | None = None):
+def recording_chunks(rec: Recording, vad: str, block: int | None = None,
+                     sample_vad: np.ndarray | None = None) -> tuple[Iterator[Chunk], bool]:
     """``(chunks, silent)`` for :func:`track_stream` from a :class:`~doabench.recording.Recording`.
 
     The recording is read block by block (up to three times: silence and peak, the WebRTC VAD,
@@ -106,23 +118,25 @@ def recording_chunks(rec, vad: str, block: int | None = None, sample_vad: np.nda
         silent = silent and not np.any(x)
         if vad == "webrtc" and sample_vad is None:
             peak = max(peak, float(np.max(np.abs(x.mean(0)))))
-    decisions = stream = None
+    decisions: np.ndarray | None = None
+    stream: StreamingWebrtcVad | None = None
     if not silent and vad == "webrtc" and sample_vad is None:
         stream = StreamingWebrtcVad(rec.fs, peak or 1.0)
         for x in rec.blocks(block):
             stream.push(x)
         decisions, _ = stream.finish()
 
-    def chunks():
+    def chunks() -> Iterator[Chunk]:
         start = 0
         for x in rec.blocks(block):
             n = x.shape[-1]
+            v: np.ndarray | None
             if sample_vad is not None:
                 v = np.asarray(sample_vad[start:start + n], bool)
             elif silent:
                 v = np.zeros(n, bool)
             else:
-                v = None if stream is None else stream.sample_vad(decisions, start, n)
+                v = None if stream is None or decisions is None else stream.sample_vad(decisions, start, n)
             start += n
             yield x, v
 

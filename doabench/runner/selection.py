@@ -55,6 +55,9 @@ def select_episodes(spec: Any, n_total: int, episodes: int | Sequence[int] | Non
             raise ConfigError(f"task {spec.id!r} has no cell {unknown[0]!r}{hint}")
         grid = [(c, idx) for c, idx in grid if c in cells]
         cells = [c for c, _ in grid]  # in the grid's order
+        pool = sorted(i for _, idx in grid for i in idx)
+    else:
+        pool = list(range(n_total))
     if episodes is not None and not isinstance(episodes, int):
         indices = sorted({int(i) for i in episodes})
         bad = [i for i in indices if not 0 <= i < n_total]
@@ -63,7 +66,6 @@ def select_episodes(spec: Any, n_total: int, episodes: int | Sequence[int] | Non
         return indices, {"rule": "indices", "episodes": len(indices), "cells": None}
     if episodes is not None and episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, got {episodes}")
-    pool = sorted(i for _, idx in grid for i in idx) if cells is not None else list(range(n_total))
     if episodes is None or episodes >= len(pool):
         rule = "cells" if cells is not None else "all"
         return pool, {"rule": rule, "episodes": None, "cells": cells}
@@ -76,7 +78,7 @@ def select_episodes(spec: Any, n_total: int, episodes: int | Sequence[int] | Non
     return sorted(taken), {"rule": "stratified", "episodes": episodes, "cells": cells}
 
 
-def cells_covered(spec: Any, rows: Sequence[dict]) -> dict[str, int] | None:
+def cells_covered(spec: Any, rows: Sequence[dict[str, Any]]) -> dict[str, int] | None:
     """``{"cells_run": cells with at least one episode in rows, "cells_total": the grid's}``, None
     for a task without cells (rows name their cell task in ``task``)."""
     cells = [str(c) for c in (spec.params.get("cells") or [])]

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 from doabench.envs.registry import get_task_spec
 from doabench.results.writer import configuration, results_stem
 from doabench.runner.journal import run_lock
-from doabench.runner.loop import execute_spec
+from doabench.runner.loop import Progress, execute_spec
 from doabench.trackers.base import Tracker, resolve_delays
 from doabench.trackers.registry import canonical_tracker, make_tracker
 
@@ -87,7 +87,7 @@ class RunSpec:
                 "weights": self.weights_hash, "env": {k: str(v) for k, v in env_options.items()}}
 
     def execute(self, tracker: Tracker, out: str | Path | None = None, *, episodes: int | Sequence[int] | None = None,
-                cells: Sequence[str] | None = None, device: str | None = None, progress: bool | Callable = True,
+                cells: Sequence[str] | None = None, device: str | None = None, progress: Progress = True,
                 keep_frames: bool = True, **env_options: Any) -> dict[str, Any]:
         """Run it (``tracker``: the instance :meth:`build` returned) and return the results
         dictionary; with ``out``, resumably through :meth:`journal_path`, which is locked so that a
@@ -101,8 +101,8 @@ class RunSpec:
 
 
 def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | None = None,
-             device: str | None = None, delays: str | None = None, tracker_options: dict | None = None,
-             partial_path: str | Path | None = None, progress: bool | Callable = True,
+             device: str | None = None, delays: str | None = None, tracker_options: Mapping[str, Any] | None = None,
+             partial_path: str | Path | None = None, progress: Progress = True,
              keep_frames: bool = True, lock: bool = True, cells: Sequence[str] | None = None,
              **env_options: Any) -> dict[str, Any]:
     """Run ``tracker`` on ``task`` and return the results dictionary (see docs/results-format).

@@ -3,11 +3,13 @@ scored frames and per-episode row of each episode, the pooled summary with its h
 scoring notes, the grid cells, provenance and timings."""
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
+from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
+from doabench.envs.spec import TaskSpec
 from doabench.runner.selection import cells_covered
 from doabench.metrics import (ScoredFrames, aggregate, bootstrap_ci, lag_from_curves, pooled_from_rows,
                               pooled_speed_bands, score_episode, score_frames)
@@ -36,15 +38,15 @@ def episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def lag_summary(rows: list[dict]) -> dict[str, Any]:
+def lag_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Pooled lag (s, or None with the reason) and RMSAE per angular-speed band of some rows."""
     lag, note = lag_from_curves(rows)
     return {"lag_s": lag, **({"lag_note": note} if note else {}), "speed_bands": pooled_speed_bands(rows)}
 
 
-def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
+def grid_cells(spec: TaskSpec, rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """Per-cell pooled RMSAEs with bootstrap CIs for a grid task, from the per-episode rows."""
-    cells = {}
+    cells: dict[str, dict[str, Any]] = {}
     for task_id in spec.params.get("cells", []):
         sub = [r for r in rows if r["task"] == task_id]
         if sub:
@@ -53,8 +55,9 @@ def grid_cells(spec, rows: list[dict]) -> dict[str, dict]:
     return cells
 
 
-def build_results(spec, tracker: Tracker, tracker_text: str, tracker_options, env, records: list[dict],
-                  wall_s: float, provenance: dict[str, Any], delays, selection: dict | None = None) -> dict[str, Any]:
+def build_results(spec: TaskSpec, tracker: Tracker, tracker_text: str, tracker_options: Mapping[str, Any] | None,
+                  env: DoaEnv, records: list[dict[str, Any]], wall_s: float, provenance: dict[str, Any], delays: str,
+                  selection: dict[str, Any] | None = None) -> dict[str, Any]:
     """The results dictionary from the episode records of a run (``env``: its :class:`DoaEnv`;
     ``selection``: how its episodes were chosen, :func:`doabench.runner.selection.select_episodes`)."""
     rows = [r["row"] for r in records]
