@@ -31,7 +31,7 @@ def _run(code: str) -> str:
     return done.stdout
 
 
-@pytest.mark.parametrize("example", ["frame_energy.py", "free_field.py"])
+@pytest.mark.parametrize("example", ["frame_energy.py", "free_field.py", "plane_wave.py"])
 def test_the_page_shows_the_tested_examples(example):
     code = (EXAMPLES / example).read_text().rstrip()
     assert f"```python\n{code}\n```" in (ROOT / "docs" / "extending.md").read_text()
@@ -157,3 +157,26 @@ def test_a_plugin_kind_without_declared_options_gets_every_option():
     spec = dataclasses.replace(get_task_spec("sim-demo"), kind="test-any-options")
     assert len(make_episode_source(spec, librispeech="/somewhere", locata_root=None)) == 4
     assert seen == {"librispeech": "/somewhere"}
+
+
+def test_a_plugin_task_kind_runs_and_a_plane_wave_is_found_where_it_comes_from():
+    out = _run('''
+        import doabench
+        from doabench.errors import ConfigError
+        from plane_wave import PlaneWaveEpisodes
+
+        doabench.register_task_kind("plane-wave", PlaneWaveEpisodes)
+        doabench.register_task({"id": "plane-check", "version": 1, "kind": "plane-wave", "array": "nao",
+                                "episodes": 3, "base_seed": 7, "plane_wave": {"duration_s": 2.0}})
+        r = doabench.run("srp-max:32x64", "plane-check", progress=False, snr_db=20)
+        assert r["summary"]["headline"]["aggregate"] == "pooled"
+        assert r["summary"]["rmsae_all"] < 4.0, r["summary"]["rmsae_all"]  # within the 5.6-degree grid
+        try:
+            doabench.run("srp-max:32x64", "plane-check", progress=False, snr_dB=20)
+        except ConfigError as exc:
+            assert "did you mean 'snr_db'" in str(exc), exc
+        else:
+            raise AssertionError("a misspelt option was accepted")
+        print("ok", round(r["summary"]["rmsae_all"], 2))
+    ''')
+    assert out.startswith("ok")
