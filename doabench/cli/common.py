@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import shlex
 import warnings
@@ -39,15 +40,26 @@ def make_checked_tracker(tracker_id: str, options: dict[str, Any]) -> Tracker:
     return tracker
 
 
-def add_corpus_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--librispeech", help="LibriSpeech root (default: $DOABENCH_LIBRISPEECH)")
-    p.add_argument("--locata-root", help="LOCATA corpus root (default: $DOABENCH_LOCATA)")
-    p.add_argument("--split", choices=["dev", "eval"], help="LOCATA split (default: the task's, dev)")
-    p.add_argument("--vad", choices=["webrtc", "corpus"], default=None,
-                   help="LOCATA voice activity: webrtc (WebRTC VAD of the array audio, the paper's; the tasks' "
-                        "default) or corpus (the corpus VAD files); recorded in the results")
-    p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
-    p.add_argument("--device", default=None, help="cpu or cuda (default cpu)")
+def corpus_option_fields(only: Iterable[str] | None = None) -> list[dataclasses.Field]:
+    """The task kinds' options that have a flag (:mod:`doabench.envs.options`), each once, in
+    order; ``only``: these option names."""
+    from doabench.envs.options import BUILTIN_KIND_OPTIONS
+
+    seen: dict[str, dataclasses.Field] = {}
+    for options in BUILTIN_KIND_OPTIONS:
+        for f in dataclasses.fields(options):
+            if "flag" in f.metadata and f.name not in seen and (only is None or f.name in only):
+                seen[f.name] = f
+    return list(seen.values())
+
+
+def add_corpus_options(p: argparse.ArgumentParser, only: Iterable[str] | None = None) -> None:
+    """The flags of the task kinds' run-time options (``--librispeech``, ``--locata-root``,
+    ``--split``, ``--vad``, ``--backend``, ``--device``), built from their options dataclasses."""
+    for f in corpus_option_fields(only):
+        meta = f.metadata
+        p.add_argument(meta["flag"], default=meta.get("cli_default"), help=meta["help"],
+                       **({"choices": list(meta["choices"])} if "choices" in meta else {}))
 
 
 def add_threads_option(p: argparse.ArgumentParser) -> None:
@@ -89,16 +101,9 @@ def set_interrupt_note(args: argparse.Namespace, note: Callable[[], str]) -> Non
 
 
 def corpus_kwargs(args: argparse.Namespace) -> dict:
-    out = {"backend": args.backend}
-    if args.librispeech:
-        out["librispeech"] = args.librispeech
-    if args.locata_root:
-        out["locata_root"] = args.locata_root
-    if args.split:
-        out["split"] = args.split
-    if getattr(args, "vad", None):
-        out["vad"] = args.vad
-    return out
+    """The task options given by flags (not the device, which a command passes on its own)."""
+    return {f.name: getattr(args, f.name) for f in corpus_option_fields()
+            if f.name != "device" and getattr(args, f.name, None)}
 
 
 def _same_file(a: Path, b: Path) -> bool:

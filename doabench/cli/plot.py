@@ -5,14 +5,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from doabench.cli.common import corpus_kwargs
+from doabench.cli.common import add_corpus_options, corpus_kwargs
 
 
 def _corpus_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--librispeech", help="LibriSpeech root (default: $DOABENCH_LIBRISPEECH)")
-    p.add_argument("--locata-root", help="LOCATA corpus root (default: $DOABENCH_LOCATA)")
-    p.add_argument("--split", choices=["dev", "eval"], help="LOCATA split (default: the task's, dev)")
-    p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
+    add_corpus_options(p, only=("librispeech", "locata_root", "split", "backend"))
 
 
 def register(sub: argparse._SubParsersAction) -> None:

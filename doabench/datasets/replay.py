@@ -23,6 +23,7 @@ import numpy as np
 
 from doabench.arrays import MicArray
 from doabench.datasets.reader import DatasetFile
+from doabench.envs.options import DatasetOptions
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import InputError, NotFoundError
@@ -61,11 +62,6 @@ def resolve_file_task(task_id: str) -> TaskSpec:
             params={"path": str(path.resolve()), "origin_task": f.task_id, "stored": list(f.items)},
             source_file=str(path),
         )
-
-
-@dataclass(frozen=True)
-class DatasetOptions:
-    """A ``dataset`` task takes no run-time option: the file holds everything."""
 
 
 class DatasetEpisodes:

@@ -4,10 +4,10 @@ Registered through the ``doabench.task_kinds`` entry-point group (pyproject.toml
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from doabench.arrays import get_array
+from doabench.envs.options import SimulatedOptions
 from doabench.envs.sources import episode_seed, make_speech_source
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
@@ -15,19 +15,6 @@ from doabench.errors import ConfigError, NotFoundError
 
 if TYPE_CHECKING:
     from doabench.acoustics.scenes import Scene, SceneDistribution
-
-
-@dataclass(frozen=True)
-class SimulatedOptions:
-    """The run-time options of a ``simulated`` task (``doabench run --librispeech ... --backend ...``,
-    ``gymnasium.make(..., backend=...)``)."""
-
-    librispeech: str | None = None  # LibriSpeech root, for tasks that speak LibriSpeech (else $DOABENCH_LIBRISPEECH)
-    backend: str = "builtin"  # room simulator: builtin, pyroomacoustics, gpurir or a plug-in's
-    device: str | None = None  # torch device of the builtin simulator (cpu, cuda)
-    # scene-distribution fields replaced in every cell (e.g. {"duration_s": 3} for quick checks);
-    # results record it, and it changes the episodes
-    scene_overrides: dict[str, Any] | None = None
 
 
 class SimulatedEpisodes:

@@ -12,9 +12,9 @@ placeholder (the corpus copy decides).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
+from doabench.envs.options import LocataOptions
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, NotFoundError
@@ -22,16 +22,6 @@ from doabench.locata.layout import find_recordings
 from doabench.locata.reader import VAD_MODES, read_recording
 
 LICENSE = "LOCATA corpus, ODC-BY 1.0, DOI 10.5281/zenodo.3630471"
-
-
-@dataclass(frozen=True)
-class LocataOptions:
-    """The run-time options of a ``locata`` task (``doabench run --locata-root ... --split ... --vad ...``)."""
-
-    locata_root: str | None = None  # the corpus root (else $DOABENCH_LOCATA)
-    split: str | None = None  # dev or eval (overrides the spec's)
-    vad: str | None = None  # webrtc (the paper's), corpus or auto (overrides the spec's)
-    source: str | None = None  # a source name, for recordings with several
 
 
 class LocataEpisodes:

@@ -1,0 +1,52 @@
+"""The run-time options of the built-in task kinds, as dataclasses (no heavy imports).
+
+A kind's episode source declares its options as ``Options`` (:mod:`doabench.envs.sources`); the
+built-in kinds' live here so that the command line builds its corpus flags from them
+(:func:`doabench.cli.common.add_corpus_options`) without importing the sources (torch, h5py). A
+field's metadata names its flag (``flag``), ``help``, ``choices`` and the flag's default
+(``cli_default``); a field without a flag is a Python-only option.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class SimulatedOptions:
+    """The run-time options of a ``simulated`` task (``doabench run --librispeech ... --backend ...``,
+    ``gymnasium.make(..., backend=...)``)."""
+
+    librispeech: str | None = field(default=None, metadata={
+        "flag": "--librispeech", "help": "LibriSpeech root (default: $DOABENCH_LIBRISPEECH)"})
+    backend: str = field(default="builtin", metadata={
+        "flag": "--backend", "cli_default": "builtin",
+        "help": "room simulator: builtin, pyroomacoustics, gpurir or a plug-in's"})
+    device: str | None = field(default=None, metadata={"flag": "--device", "help": "cpu or cuda (default cpu)"})
+    # scene-distribution fields replaced in every cell (e.g. {"duration_s": 3} for quick checks);
+    # results record it, and it changes the episodes
+    scene_overrides: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class LocataOptions:
+    """The run-time options of a ``locata`` task (``doabench run --locata-root ... --split ... --vad ...``)."""
+
+    locata_root: str | None = field(default=None, metadata={
+        "flag": "--locata-root", "help": "LOCATA corpus root (default: $DOABENCH_LOCATA)"})
+    split: str | None = field(default=None, metadata={
+        "flag": "--split", "choices": ("dev", "eval"), "help": "LOCATA split (default: the task's, dev)"})
+    vad: str | None = field(default=None, metadata={
+        "flag": "--vad", "choices": ("webrtc", "corpus"),
+        "help": "LOCATA voice activity: webrtc (WebRTC VAD of the array audio, the paper's; the tasks' default) "
+                "or corpus (the corpus VAD files); recorded in the results"})
+    source: str | None = None  # a source name, for recordings with several
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """A ``dataset`` task takes no run-time option: the file holds everything."""
+
+
+#: The options whose flags the command line offers, in the order its help lists them.
+BUILTIN_KIND_OPTIONS = (SimulatedOptions, LocataOptions)
