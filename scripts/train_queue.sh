@@ -118,6 +118,10 @@ for entry in "${QUEUE[@]}"; do
         --out "$out" --quiet --threads "$threads" ${extra[@]+"${extra[@]}"} ${resume[@]+"${resume[@]}"}
     "$DOABENCH" train --tracker "$model" --tracker-opt weights=random --out "$out" --export-dtype "$dtype" --export "$weights"
     sha=$(sha256sum "$weights" | cut -d' ' -f1)
+    # the shipped files' manifest (baselines/weights/SHA256SUMS, sha256sum format, sorted by name)
+    manifest=baselines/weights/SHA256SUMS
+    { grep -v "  $weights_name.safetensors\$" "$manifest" || true; echo "$sha  $weights_name.safetensors"; } \
+        | sort -k2 > "$manifest.tmp" && mv "$manifest.tmp" "$manifest"
     rm -f "$out/checkpoint.safetensors"
     printf 'exported %s (%s preset) to %s (sha256 %s) on %s\n' "$model" "$preset" "$weights" "$sha" \
         "$(date -u +%FT%TZ)" > "$out/exported.txt"
