@@ -24,15 +24,13 @@ FORMATS = ("onnx",)
 
 def example_features(tracker: Any, n_frames: int = 12, seed: int = 0) -> dict[str, np.ndarray]:
     """Features of random audio on the tracker's frame grid and array: a realistic example input."""
-    from doabench.features.plan import ObservationPlan
-
     spec = tracker.frame_spec
     array = getattr(tracker, "_array", None)
     if array is None:
         raise ConfigError(f"tracker {tracker.name!r} has no array to build an example input for")
     samples = spec.window + spec.hop * (n_frames - 1)
     audio = (0.1 * np.random.default_rng(seed).standard_normal((array.n_mics, samples))).astype(np.float32)
-    return ObservationPlan.for_tracker(tracker, array).observations(audio, None)
+    return tracker.observation_spec.plan(array).observations(audio, None)
 
 
 def metadata(tracker: Any, tracker_id: str) -> dict[str, str]:

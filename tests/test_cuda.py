@@ -16,7 +16,6 @@ from doabench.acoustics import native
 from doabench.acoustics.room import Room
 from doabench.acoustics.scenes import SceneDistribution, sample_scene
 from doabench.acoustics.simulators import get_simulator
-from doabench.features.plan import ObservationPlan
 
 pytestmark = [pytest.mark.cuda,
               pytest.mark.skipif(not torch.cuda.is_available(),
@@ -65,7 +64,7 @@ def test_moving_turning_array_simulates_alike_on_cuda():
 def test_srp_phat_maps_on_cuda_equal_the_cpu(delays):
     array = doabench.get_array("nao")
     tracker = doabench.make_tracker("srp-max:16x32")
-    plan = ObservationPlan.for_tracker(tracker, array, delays)
+    plan = tracker.observation_spec.with_delays(delays).plan(array)
     audio = np.random.default_rng(2).standard_normal((len(array.positions), 2 * FS)).astype(np.float32)
     cpu = plan.observations(audio, None, device="cpu")
     gpu = plan.observations(audio, None, device="cuda")

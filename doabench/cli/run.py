@@ -62,14 +62,13 @@ def main(args: argparse.Namespace) -> int:
     if spec.trained_delays is not None:
         print(f"note: {spec.tracker} was trained on {spec.trained_delays} SRP delays; running with --delays "
               f"{spec.delays} as asked (the results record both)", file=sys.stderr)
-    kind = get_task_spec(spec.task).kind
-    if args.vad and "vad" not in kind_options(task_kind(kind)):
-        raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.task!r} is {kind} (its VAD is the scene's)")
+    task = get_task_spec(spec.task)
+    if args.vad and "vad" not in kind_options(task_kind(task.kind, task.id)):
+        raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.task!r} is {task.kind} (its VAD is the scene's)")
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
     # Refused before the work: a file of another configuration under this name (never overwritten silently).
-    total = get_task_spec(spec.task).episodes
-    is_partial = bool(args.cells) or (args.episodes is not None and args.episodes < total)
+    is_partial = bool(args.cells) or (args.episodes is not None and args.episodes < task.episodes)
     check_overwrite(spec.results_path(out), spec.configuration(), args.overwrite, partial=is_partial)
     partial = spec.journal_path(out)
     set_interrupt_note(args, lambda: _kept(args, partial))

@@ -64,26 +64,26 @@ def available_task_kinds() -> list[str]:
     return sorted(set(_KINDS) | {ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)})
 
 
-def task_kind(kind: str) -> Callable[..., EpisodeSource]:
-    """The factory of task kind ``kind`` (loaded from its entry point on first use)."""
+def task_kind(kind: str, task_id: str | None = None) -> Callable[..., EpisodeSource]:
+    """The factory of task kind ``kind`` (loaded from its entry point on first use); a one-line
+    ConfigError (naming ``task_id`` when given) for a kind nobody registered or declared."""
     if kind not in _KINDS:
         _load_kind(kind)
-    return _KINDS[kind]
-
-
-def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
-    """The episode source of ``spec``: its kind's factory, given the options (not None) its kind takes."""
-    if spec.kind not in _KINDS:
-        _load_kind(spec.kind)
-    if spec.kind not in _KINDS:
+    if kind not in _KINDS:
         known = available_task_kinds()
         declared = any(True for _ in metadata.entry_points(group=ENTRY_POINT_GROUP))
         hint = "" if declared else (
             f"; the installed doabench metadata declares no {ENTRY_POINT_GROUP} entry points: reinstall doabench "
             "(pip install -e .)")
-        raise ConfigError(f"task {spec.id!r}: unknown kind {spec.kind!r} (known: {', '.join(known)}){hint}")
+        where = f"task {task_id!r}: " if task_id is not None else ""
+        raise ConfigError(f"{where}unknown kind {kind!r} (known: {', '.join(known)}){hint}")
+    return _KINDS[kind]
+
+
+def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
+    """The episode source of ``spec``: its kind's factory, given the options (not None) its kind takes."""
+    factory = task_kind(spec.kind, spec.id)
     check_options(options)
-    factory = _KINDS[spec.kind]
     given = {k: v for k, v in options.items() if v is not None}
     if not _takes_any_option(factory):
         taken = kind_options(factory)

@@ -16,7 +16,7 @@ plan to describe spaces (``gymnasium.make``) needs none.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol, Sequence, cast
+from typing import TYPE_CHECKING, Any, Sequence, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -52,20 +52,6 @@ def framed_audio(audio: np.ndarray, frame_spec: FrameSpec) -> np.ndarray:
     return np.moveaxis(frames, 0, 1)
 
 
-class _PlannedObservations(Protocol):
-    """What :meth:`ObservationPlan.for_tracker` uses of an :class:`~doabench.features.spec.ObservationSpec`
-    (the spec module imports this one, so it is named by its shape)."""
-
-    def with_delays(self, delays: str) -> "_PlannedObservations": ...
-
-    def plan(self, array: MicArray | str) -> "ObservationPlan": ...
-
-
-class _ObservingTracker(Protocol):
-    @property
-    def observation_spec(self) -> _PlannedObservations: ...
-
-
 def _grid(resolution: str | Sequence[int]) -> tuple[int, int]:
     """``"16x32"`` as trackers may declare it, or ``(n_theta, n_phi)``, as a tuple. The sizes are not
     checked here: the extractor validates them (``as_resolution``'s ConfigError)."""
@@ -95,13 +81,6 @@ class ObservationPlan:
         self.delays = delays
         self.spectrogram_frame_spec = spectrogram_frame_spec
         self._extractors: dict[tuple[bytes, tuple[str, ...], tuple[int, int]], FeatureExtractor] = {}
-
-    @classmethod
-    def for_tracker(cls, tracker: _ObservingTracker, array: MicArray | str, delays: str | None = None) -> "ObservationPlan":
-        """The observations a tracker reads (its :attr:`~doabench.Tracker.observation_spec`), on
-        ``delays`` when given (another delay mode on purpose), else on the tracker's own."""
-        spec = tracker.observation_spec
-        return (spec if delays is None else spec.with_delays(delays)).plan(array)
 
     # -- description ------------------------------------------------------------------------------
     @property

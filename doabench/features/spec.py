@@ -60,9 +60,10 @@ class ObservationSpec:
         grid = cast("tuple[int, int]", resolution or DEFAULT_RESOLUTION)
         return cls(tuple(kinds), grid, frame_spec or FrameSpec(), delays or "nearest", spectrogram_frame_spec)
 
-    def with_delays(self, delays: str) -> "ObservationSpec":
-        """The same observations on ``delays`` (a run that asks for other delays on purpose)."""
-        return replace(self, delays=delays)
+    def with_delays(self, delays: str | None) -> "ObservationSpec":
+        """The same observations on ``delays`` (a run that asks for other delays on purpose); None
+        keeps the spec's own."""
+        return self if delays is None else replace(self, delays=delays)
 
     @property
     def separate_spectrogram_grid(self) -> bool:

@@ -98,7 +98,7 @@ def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays:
     """The environment giving the observations a tracker reads (its ``observation_spec``), on
     ``delays`` when given (another delay mode on purpose), else on the tracker's own."""
     spec = get_task_spec(task)
-    wanted = tracker.observation_spec if delays is None else tracker.observation_spec.with_delays(delays)
+    wanted = tracker.observation_spec.with_delays(delays)
     if wanted.frame_spec.fs != spec.frames.fs:
         raise ConfigError(f"tracker {tracker.name!r} needs {wanted.frame_spec.fs} Hz audio; task {spec.id!r} is "
                           f"{spec.frames.fs} Hz")

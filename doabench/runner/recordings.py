@@ -32,10 +32,8 @@ def track_recording(tracker: Tracker, array: MicArray, audio: np.ndarray, sample
                     delays: str | None = None, device: str | None = None) -> dict[str, np.ndarray]:
     """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording, on
     the tracker's own observations (``delays``: another delay mode on purpose)."""
-    from doabench.features.plan import ObservationPlan
-
     spec = tracker.frame_spec
-    feats = ObservationPlan.for_tracker(tracker, array, delays).observations(audio, sample_vad, device=device)
+    feats = tracker.observation_spec.with_delays(delays).plan(array).observations(audio, sample_vad, device=device)
     n = len(feats["vad"])
     guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
 
@@ -59,11 +57,11 @@ def track_stream(tracker: Tracker, array: MicArray, chunks: Iterable[Chunk], del
     """
     import torch
 
-    from doabench.features.plan import ObservationPlan, framed_audio
+    from doabench.features.plan import framed_audio
     from doabench.features.streaming import FrameStream
 
     spec = tracker.frame_spec
-    extractor = ObservationPlan.for_tracker(tracker, array, delays).streaming_extractor()
+    extractor = tracker.observation_spec.with_delays(delays).plan(array).streaming_extractor()
     framer = FrameStream(spec) if "audio" in tracker.features else None
     guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
     directions: list[np.ndarray] = []
