@@ -464,3 +464,19 @@ def test_append_line_cuts_a_failed_line_off(tmp_path, monkeypatch):
     monkeypatch.undo()
     assert path.read_text() == '{"a": 1}\n'
 
+
+
+def test_a_float_wav_written_in_another_second_has_the_same_bytes(tmp_path):
+    """libsndfile stamps float WAVs with the time of writing (the PEAK chunk); doabench's writer
+    zeroes the stamp, so a seeded simulation gives the same file whenever it is written."""
+    import time
+
+    from doabench.recording import write_float_wav
+
+    audio = np.random.default_rng(0).standard_normal((3, 800)).astype(np.float32) * 0.1
+    write_float_wav(tmp_path / "a.wav", audio, 16000)
+    time.sleep(1.1)
+    write_float_wav(tmp_path / "b.wav", audio, 16000)
+    assert (tmp_path / "a.wav").read_bytes() == (tmp_path / "b.wav").read_bytes()
+    data, fs = sf.read(tmp_path / "a.wav", dtype="float32", always_2d=True)
+    assert fs == 16000 and np.array_equal(data.T, audio)

@@ -156,13 +156,12 @@ def _task_episode(args: argparse.Namespace):
 
 def write_outputs(folder: Path, episode, scene_info: dict) -> None:
     """Write audio.wav, truth.csv and scene.json into ``folder``."""
-    import soundfile as sf
-
     from doabench.framing import FrameSpec
+    from doabench.recording import write_float_wav
     from doabench.results.files import atomic_path, write_text
 
     with atomic_path(folder / "audio.wav") as tmp:
-        sf.write(str(tmp), episode.audio.T, episode.fs, subtype="FLOAT")
+        write_float_wav(tmp, episode.audio, episode.fs)
     frames = FrameSpec(fs=episode.fs)
     truth = episode.frame_truth(frames)
     with atomic_path(folder / "truth.csv") as tmp, open(tmp, "w", newline="") as f:
