@@ -196,3 +196,40 @@ def test_plot_maps_and_rendered_episode(tmp_path: Path) -> None:
     path.write_text(json.dumps(results, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
     assert cli(["plot", "episode", str(path), "--episode", "0", "--out", str(tmp_path / "ep")]) == 0
     assert (tmp_path / "ep.png").is_file()
+
+
+def test_the_reproduce_command_takes_its_flags_from_the_task_kind(monkeypatch):
+    """The corpus flags come from the kind's options (``Options.reproduce_flags``): LOCATA's root,
+    split and VAD, LibriSpeech's root and the simulator, a plug-in kind's own, nothing for a kind
+    that is not installed."""
+    import dataclasses
+
+    import doabench.envs.sources as sources
+    from doabench.results.leaderboard import reproduce_command
+
+    def results(kind, source):
+        return {"task": {"id": "t", "kind": kind, "source": source}, "tracker": {"id": "srp-max:8x16"}}
+
+    locata = reproduce_command(results("locata", {"split": "eval", "vad": "corpus", "locata_task": 3}))
+    assert locata.endswith("--task t --locata-root LOCATA_ROOT --split eval --vad corpus")
+    assert reproduce_command(results("locata", {"split": "dev", "vad": "webrtc"})).endswith("--locata-root LOCATA_ROOT")
+    simulated = {"speech": {"corpus": "librispeech"}, "simulator": "pyroomacoustics"}
+    assert reproduce_command(results("simulated", simulated)).endswith(
+        "--librispeech LIBRISPEECH_ROOT --backend pyroomacoustics")
+    assert reproduce_command(results("dataset", {"file": "x.h5"})).endswith("--task t")
+
+    @dataclasses.dataclass(frozen=True)
+    class ToneOptions:
+        tone_root: str | None = None
+
+        @staticmethod
+        def reproduce_flags(source):
+            return ["--tone-root TONES_ROOT"] if source.get("recorded") else []
+
+    def tones(spec, tone_root=None):
+        raise AssertionError("not built for a leaderboard")
+
+    tones.Options = ToneOptions
+    monkeypatch.setitem(sources._KINDS, "tones", tones)
+    assert reproduce_command(results("tones", {"recorded": True})).endswith("--task t --tone-root TONES_ROOT")
+    assert reproduce_command(results("not-installed", {"recorded": True})).endswith("--task t")

@@ -27,6 +27,18 @@ class SimulatedOptions:
     # results record it, and it changes the episodes
     scene_overrides: dict[str, Any] | None = None
 
+    @staticmethod
+    def reproduce_flags(source: dict[str, Any]) -> list[str]:
+        """The flags that re-create a run, from its results' ``task.source``: the LibriSpeech root
+        as a placeholder where the task's speech is LibriSpeech, and a simulator other than the
+        builtin one."""
+        flags = []
+        if (source.get("speech") or {}).get("corpus") == "librispeech":
+            flags.append("--librispeech LIBRISPEECH_ROOT")
+        if source.get("simulator") not in (None, "builtin"):
+            flags.append(f"--backend {source['simulator']}")
+        return flags
+
 
 @dataclass(frozen=True)
 class LocataOptions:
@@ -42,10 +54,25 @@ class LocataOptions:
                 "or corpus (the corpus VAD files); recorded in the results"})
     source: str | None = None  # a source name, for recordings with several
 
+    @staticmethod
+    def reproduce_flags(source: dict[str, Any]) -> list[str]:
+        """The flags that re-create a run, from its results' ``task.source``: the corpus root as a
+        placeholder, a split other than dev and the corpus VAD where the run used it."""
+        flags = ["--locata-root LOCATA_ROOT"]
+        if source.get("split") not in (None, "dev"):
+            flags.append(f"--split {source['split']}")
+        if source.get("vad") not in (None, "webrtc"):
+            flags.append(f"--vad {source['vad']}")
+        return flags
+
 
 @dataclass(frozen=True)
 class DatasetOptions:
     """A ``dataset`` task takes no run-time option: the file holds everything."""
+
+    @staticmethod
+    def reproduce_flags(source: dict[str, Any]) -> list[str]:
+        return []
 
 
 #: The options whose flags the command line offers, in the order its help lists them.

@@ -20,6 +20,8 @@ import re
 from pathlib import Path
 from typing import Any, Sequence
 
+from doabench.envs.sources import task_kind
+from doabench.errors import ConfigError
 from doabench.results.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, canonical_id, collect, coverage, display_path,
                                       load_references, load_runs, recording_mean)
@@ -66,6 +68,18 @@ def safe_name(task_id: str) -> str:
 
 
 # -- provenance ---------------------------------------------------------------------------------------
+def kind_reproduce_flags(task: dict[str, Any]) -> list[str]:
+    """The run-time flags of the task's kind that re-create a run (corpus roots as placeholders),
+    as the kind's options declare them (``Options.reproduce_flags(task["source"])``); none for a
+    kind that declares none or is not installed here."""
+    try:
+        options = getattr(task_kind(str(task.get("kind"))), "Options", None)
+    except ConfigError:
+        return []
+    flags = getattr(options, "reproduce_flags", None)
+    return list(flags(task.get("source") or {})) if callable(flags) else []
+
+
 def reproduce_command(results: dict[str, Any]) -> str:
     """The ``doabench run`` command line that re-creates a results file (corpus paths as placeholders)."""
     task = results["task"]
@@ -82,16 +96,7 @@ def reproduce_command(results: dict[str, Any]) -> str:
     features = results.get("features") or {}
     if features.get("delays") not in (None, "nearest"):
         parts.append(f"--delays {features['delays']}")
-    source = task.get("source") or {}
-    speech = source.get("speech") or {}
-    if speech.get("corpus") == "librispeech":
-        parts.append("--librispeech LIBRISPEECH_ROOT")
-    if task.get("kind") == "locata" or "locata_task" in source:
-        parts.append("--locata-root LOCATA_ROOT")
-        if source.get("split") not in (None, "dev"):
-            parts.append(f"--split {source['split']}")
-    if source.get("simulator") not in (None, "builtin"):
-        parts.append(f"--backend {source['simulator']}")
+    parts += kind_reproduce_flags(task)
     device = (results.get("environment") or {}).get("device")
     if device not in (None, "cpu"):
         parts.append(f"--device {device}")
