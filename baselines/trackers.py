@@ -318,7 +318,7 @@ class NeuralTracker(doabench.Tracker):
         if self._runner is None:
             return super().step(observation)  # offline model: the base class says to use track()
         y = self._runner.step(self.frame_input(observation))[0]
-        direction = self._direction(y.detach().double().cpu().numpy())
+        direction = self.direction_from_output(y.detach().double().cpu().numpy())
         hold = self.hold_frames
         if hold is None:
             return direction
@@ -350,11 +350,11 @@ class NeuralTracker(doabench.Tracker):
             else:
                 y = self.model(x)
         self._last = _INITIAL_DIRECTION.copy()
-        directions = np.stack([self._direction(v) for v in y[0].to("cpu", torch.float64).numpy()])
+        directions = np.stack([self.direction_from_output(v) for v in y[0].to("cpu", torch.float64).numpy()])
         hold = self.hold_frames
         return directions if hold is None else doabench.hold_in_silences(directions, np.asarray(episode["vad"], bool), hold)
 
-    def _direction(self, y: np.ndarray) -> np.ndarray:
+    def direction_from_output(self, y: np.ndarray) -> np.ndarray:
         """Normalise the network output; keep the previous direction if it is (near) zero. A NaN or
         infinite output is an error (broken weights or inputs), never silently held."""
         y = np.asarray(y, dtype=np.float64)

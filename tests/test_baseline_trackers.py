@@ -118,11 +118,11 @@ def test_seldnet_is_offline():
 def test_a_zero_network_output_keeps_the_previous_direction():
     tracker = _make("max-cnn1d")
     tracker.reset(doabench.get_array("nao"))
-    first = tracker._direction(np.array([0.0, 2.0, 0.0]))
+    first = tracker.direction_from_output(np.array([0.0, 2.0, 0.0]))
     assert np.allclose(first, [0, 1, 0])
-    assert np.allclose(tracker._direction(np.zeros(3)), [0, 1, 0])
+    assert np.allclose(tracker.direction_from_output(np.zeros(3)), [0, 1, 0])
     with pytest.raises(TrackerError):  # a NaN output is never turned into a held estimate
-        tracker._direction(np.array([np.nan, 0, 0]))
+        tracker.direction_from_output(np.array([np.nan, 0, 0]))
 
 
 def test_user_mistakes_are_config_errors():

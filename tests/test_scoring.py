@@ -140,7 +140,10 @@ def test_the_environment_reward_folds_a_planar_array_as_the_scores_do():
 
     env = DoaEnv("sim-demo", features=("srp",), resolution=(4, 8), scene_overrides=QUICK_SCENE)
     env.reset(options={"episode": 0})
-    truth = env._truth["directions"]  # read here only to build the mirrored action
+    while not env.step(np.array([1.0, 0.0, 0.0]))[2]:  # the truth is told once the episode is over
+        pass
+    truth = env.episode_truth()["directions"]
+    env.reset(options={"episode": 0})
     mirror = truth[0] * np.array([1.0, 1.0, -1.0])
     if abs(truth[0][2]) < 1e-3:
         pytest.skip("the truth lies in the array plane: its mirror image is itself")

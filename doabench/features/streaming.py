@@ -71,6 +71,13 @@ class StreamingFeatureExtractor:
         self._layout: tuple[int, bool] | None = None
         self.samples_seen = 0
 
+    @property
+    def buffered_samples(self) -> int:
+        """Samples per channel held for the next frame of the main grid (from its first sample):
+        what a push keeps between calls, less than a window once any frame was emitted."""
+        audio = self._main.audio
+        return 0 if audio is None else int(audio.shape[-1])
+
     def push(
         self, chunk: np.ndarray | torch.Tensor, vad_chunk: ArrayLike | torch.Tensor | None = None
     ) -> dict[str, torch.Tensor]:
