@@ -52,12 +52,16 @@ def _one_torch_thread_after_fork() -> None:
             pass
 
 
+_fork_guard_installed = False
+
+
 def _install_fork_guard() -> None:
+    global _fork_guard_installed
     import os
 
-    if hasattr(os, "register_at_fork") and not getattr(_install_fork_guard, "done", False):
+    if hasattr(os, "register_at_fork") and not _fork_guard_installed:
         os.register_at_fork(after_in_child=_one_torch_thread_after_fork)
-        _install_fork_guard.done = True
+        _fork_guard_installed = True
 
 
 _install_fork_guard()

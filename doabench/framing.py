@@ -98,8 +98,8 @@ def frame_vad(sample_vad: Any, window: int, hop: int) -> Any:
     A frame is active when more than 2/3 of its samples are active.
     """
     if is_tensor(sample_vad):
-        frames = frame_signal(sample_vad.float(), window, hop)
-        return frames.mean(-1) > ACTIVE_FRACTION
+        tensor_frames = frame_signal(sample_vad.float(), window, hop)
+        return tensor_frames.mean(-1) > ACTIVE_FRACTION
     frames = frame_signal(np.asarray(sample_vad, dtype=np.float32), window, hop)
     return frames.mean(-1) > ACTIVE_FRACTION
 

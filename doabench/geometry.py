@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import TYPE_CHECKING, Union
+from typing import TYPE_CHECKING, TypeGuard, Union, overload
 
 import numpy as np
 
@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 ArrayLike = Union[np.ndarray, "torch.Tensor"]
 
 
-def is_tensor(x) -> bool:
+def is_tensor(x: object) -> TypeGuard[torch.Tensor]:
     """True when ``x`` is a torch tensor (without importing torch)."""
     torch_module = sys.modules.get("torch")
     return torch_module is not None and isinstance(x, torch_module.Tensor)
@@ -41,6 +41,11 @@ def _lib(x: ArrayLike):
     return sys.modules["torch"] if is_tensor(x) else np
 
 
+# The overloads say what the module docstring does: a function returns the kind of array it was given.
+@overload
+def angles_to_unit(elevation: torch.Tensor, azimuth: torch.Tensor) -> torch.Tensor: ...
+@overload
+def angles_to_unit(elevation: np.ndarray, azimuth: np.ndarray) -> np.ndarray: ...
 def angles_to_unit(elevation: ArrayLike, azimuth: ArrayLike) -> ArrayLike:
     """(elevation, azimuth) in radians, shape ``(...)`` each -> unit vectors ``(..., 3)``."""
     lib = _lib(elevation)
@@ -48,6 +53,10 @@ def angles_to_unit(elevation: ArrayLike, azimuth: ArrayLike) -> ArrayLike:
     return lib.stack([s * lib.cos(azimuth), s * lib.sin(azimuth), lib.cos(elevation)], -1)
 
 
+@overload
+def unit_to_angles(u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]: ...
+@overload
+def unit_to_angles(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 def unit_to_angles(u: ArrayLike) -> tuple[ArrayLike, ArrayLike]:
     """Vectors ``(..., 3)`` (any norm > 0) -> (elevation, azimuth) in radians, each ``(...)``."""
     lib = _lib(u)
@@ -59,6 +68,10 @@ def unit_to_angles(u: ArrayLike) -> tuple[ArrayLike, ArrayLike]:
     return elevation, azimuth
 
 
+@overload
+def _prescale(u: torch.Tensor) -> torch.Tensor: ...
+@overload
+def _prescale(u: np.ndarray) -> np.ndarray: ...
 def _prescale(u: ArrayLike) -> ArrayLike:
     """``u`` divided by its largest absolute component along the last axis (rows that are all zero
     stay zero), so that squaring the components neither overflows (1e200) nor underflows (1e-200)."""
@@ -73,6 +86,10 @@ def _prescale(u: ArrayLike) -> ArrayLike:
         return u / np.where(m > 0, m, 1)
 
 
+@overload
+def robust_norm(u: torch.Tensor) -> torch.Tensor: ...
+@overload
+def robust_norm(u: np.ndarray) -> np.ndarray: ...
 def robust_norm(u: ArrayLike) -> ArrayLike:
     """Euclidean norm over the last axis without overflow or underflow: ``max|u_i| * |u / max|u_i||``."""
     if is_tensor(u):
@@ -86,6 +103,10 @@ def robust_norm(u: ArrayLike) -> ArrayLike:
         return m * np.linalg.norm(_prescale(u), axis=-1)
 
 
+@overload
+def normalize(u: torch.Tensor, eps: float = ...) -> torch.Tensor: ...
+@overload
+def normalize(u: np.ndarray, eps: float = ...) -> np.ndarray: ...
 def normalize(u: ArrayLike, eps: float = 1e-12) -> ArrayLike:
     """Scale vectors ``(..., 3)`` to unit norm.
 
@@ -99,6 +120,12 @@ def normalize(u: ArrayLike, eps: float = 1e-12) -> ArrayLike:
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), eps)
 
 
+@overload
+def great_circle_error(u: torch.Tensor, v: ArrayLike) -> torch.Tensor: ...
+@overload
+def great_circle_error(u: ArrayLike, v: torch.Tensor) -> torch.Tensor: ...
+@overload
+def great_circle_error(u: np.ndarray, v: np.ndarray) -> np.ndarray: ...
 def great_circle_error(u: ArrayLike, v: ArrayLike) -> ArrayLike:
     """Angle in radians between directions ``(..., 3)`` (need not be unit norm).
 
@@ -125,6 +152,10 @@ def fold_to_upper(directions: np.ndarray) -> np.ndarray:
     return d
 
 
+@overload
+def wrap_angle(a: torch.Tensor) -> torch.Tensor: ...
+@overload
+def wrap_angle(a: np.ndarray) -> np.ndarray: ...
 def wrap_angle(a: ArrayLike) -> ArrayLike:
     """Wrap radians to ``[-pi, pi)``."""
     return (a + math.pi) % (2 * math.pi) - math.pi

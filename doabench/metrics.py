@@ -244,12 +244,12 @@ def paired_difference_ci(sum_sq_a: np.ndarray, counts_a: np.ndarray, sum_sq_b: n
     return float(np.sqrt(sq_a.sum() / n_a.sum()) - np.sqrt(sq_b.sum() / n_b.sum())), float(lo), float(hi)
 
 
-def pooled_from_rows(rows: Sequence[dict]) -> dict[str, float]:
+def pooled_from_rows(rows: Sequence[dict]) -> dict[str, float | tuple[float, float]]:
     """Pooled RMSAEs (all / non-silent) and their bootstrap CIs from per-episode rows alone.
 
     Exact: a pooled RMS is sqrt(sum_i n_i rms_i^2 / sum_i n_i) over episodes i.
     """
-    out: dict[str, float] = {}
+    out: dict[str, float | tuple[float, float]] = {}
     for stat, count in (("rmsae_all", "n_frames"), ("rmsae_nonsilent", "n_nonsilent")):
         rms = np.array([r[stat] for r in rows], float)
         n = np.array([r[count] for r in rows], float)

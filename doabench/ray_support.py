@@ -9,7 +9,7 @@ started: a session that finds Ray already initialised (a test fixture, a noteboo
 from __future__ import annotations
 
 import contextlib
-from typing import Any, Iterator
+from typing import Any, Iterator, TypeVar
 
 from doabench.errors import ConfigError, DependencyError, DoabenchError
 
@@ -64,7 +64,10 @@ def cluster_cpus(ray: Any) -> int:
         return 1
 
 
-def unwrap(exc: BaseException) -> BaseException:
+ExceptionT = TypeVar("ExceptionT", bound=BaseException)
+
+
+def unwrap(exc: ExceptionT) -> ExceptionT | DoabenchError:
     """The user-facing error inside a Ray task error (its ``cause``), else ``exc`` itself."""
     cause = getattr(exc, "cause", None)
     if isinstance(cause, DoabenchError):

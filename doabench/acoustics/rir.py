@@ -228,6 +228,9 @@ def enumerate_images(room: Room, horizon: float) -> ImageSet:
         keep = (lower <= horizon) & (gain > 0)
         axes.append((sign[keep], offset[keep], gain[keep], (k0 + k1)[keep], lower[keep]))
     (sx, ox, gx, kx, bx), (sy, oy, gy, ky, by), (sz, oz, gz, kz, bz) = axes
+    ix: np.ndarray  # the index grids: 3-d from the meshgrid, then flat
+    iy: np.ndarray
+    iz: np.ndarray
     ix, iy, iz = np.meshgrid(np.arange(len(sx)), np.arange(len(sy)), np.arange(len(sz)), indexing="ij")
     ix, iy, iz = ix.ravel(), iy.ravel(), iz.ravel()
     keep = bx[ix] ** 2 + by[iy] ** 2 + bz[iz] ** 2 <= horizon**2
@@ -310,7 +313,6 @@ def render_images(
         return out
     half, over, block = SINC_HALF, OVERSAMPLE, _BLOCK
     to_samples = fs / SPEED_OF_SOUND
-    f32 = dict(dtype=torch.float32, device=device)
 
     # Coordinates relative to the array centre keep |p|^2 - 2 p.m + |m|^2 free of cancellation.
     # (A moving array: the centre of all its positions, so a radius that covers every pose.)
@@ -327,9 +329,9 @@ def render_images(
                       np.ascontiguousarray(images.gain / (4.0 * math.pi), dtype=np.float32),
                       reach * reach, to_samples * KERNEL_PHASES, _tap_table(), out.numpy(), n_out)
         return out[..., :n_out]
-    sign = torch.as_tensor(images.sign, **f32)
-    offset = torch.as_tensor(images.offset - centre.cpu().numpy(), **f32)
-    gain = torch.as_tensor(images.gain / (4.0 * math.pi), **f32)
+    sign = torch.as_tensor(images.sign, dtype=torch.float32, device=device)
+    offset = torch.as_tensor(images.offset - centre.cpu().numpy(), dtype=torch.float32, device=device)
+    gain = torch.as_tensor(images.gain / (4.0 * math.pi), dtype=torch.float32, device=device)
 
     # Keep (point, image) pairs whose image is within reach of the array's bounding sphere
     # (cheap (P, I) work that spares the (M, K) work below). Images up to 2 array radii beyond
@@ -353,7 +355,7 @@ def render_images(
     if workspace is not None and workspace and workspace[0].numel() >= size:
         buf = workspace[0][:size].zero_()
     else:
-        buf = torch.zeros(size, **f32)
+        buf = torch.zeros(size, dtype=torch.float32, device=device)
         if workspace is not None:
             workspace[:] = [buf]
     index_dtype = torch.int32 if size < 2**31 else torch.int64
@@ -376,6 +378,7 @@ def render_images(
                 near = mic.index_select(0, p_idx[k0:k1])
                 dist = (pos[:, k0:k1].T[:, None, :] - near).square_().sum(-1).T.contiguous()
             else:
+                assert mic_sq is not None, "computed whenever the points share their microphones"
                 dist = mic_sq + pos_sq[None, k0:k1]
                 for a in range(3):
                     dist.addcmul_(mic[:, a, None], pos[None, a, k0:k1], value=-2.0)

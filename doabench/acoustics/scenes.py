@@ -16,7 +16,7 @@ import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Sequence, cast
 
 import numpy as np
 
@@ -228,7 +228,7 @@ class SceneDistribution:
         return dataclasses.replace(self, **changes)
 
 
-def _check(ok: bool, message: str) -> None:
+def _check(ok: bool | np.bool_, message: str) -> None:
     if not ok:
         raise ConfigError(message)
 
@@ -425,8 +425,9 @@ class Scene:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Scene":
         try:
-            room = Room(tuple(float(x) for x in d["room"]["dims"]), float(d["room"]["t60"]),
-                        tuple(float(w) for w in d["room"]["abs_weights"]))
+            # Room checks that there are three
+            dims = cast(tuple[float, float, float], tuple(float(x) for x in d["room"]["dims"]))
+            room = Room(dims, float(d["room"]["t60"]), tuple(float(w) for w in d["room"]["abs_weights"]))
             noise = d.get("directional_noise")
             return cls(
                 room=room, snr_db=float(d["snr_db"]),
@@ -451,7 +452,9 @@ class Scene:
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Scene) and self.to_dict() == other.to_dict()
 
-    __hash__ = None  # mutable-looking contents (dicts); scenes are compared, not hashed
+    # mutable-looking contents (dicts); scenes are compared, not hashed. None is how Python marks a class
+    # unhashable, which typeshed's Callable type of object.__hash__ does not allow for.
+    __hash__ = None  # type: ignore[assignment]
 
 
 MAX_ROOM_TRIES = 1000
@@ -467,7 +470,8 @@ def _sample_room(r: np.random.Generator, dist: SceneDistribution) -> tuple[Room,
     snr = float(r.uniform(*dist.snr))
     low = max(dist.abs_weights[0], 1e-6)  # Room needs weights > 0
     for _ in range(MAX_ROOM_TRIES):
-        dims = tuple(float(x) for x in r.uniform(dist.room_min, dist.room_max))
+        # three: room_min and room_max are (x, y, z) bounds
+        dims = cast(tuple[float, float, float], tuple(float(x) for x in r.uniform(dist.room_min, dist.room_max)))
         weights = tuple(float(w) for w in r.uniform(low, dist.abs_weights[1], 6))
         if t60 == 0 or Room(dims, 0.0, weights).min_t60() <= t60:
             return Room(dims, t60, weights), snr

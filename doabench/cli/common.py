@@ -58,8 +58,8 @@ def add_corpus_options(p: argparse.ArgumentParser, only: Iterable[str] | None = 
     ``--split``, ``--vad``, ``--backend``, ``--device``), built from their options dataclasses."""
     for f in corpus_option_fields(only):
         meta = f.metadata
-        p.add_argument(meta["flag"], default=meta.get("cli_default"), help=meta["help"],
-                       **({"choices": list(meta["choices"])} if "choices" in meta else {}))
+        choices = list(meta["choices"]) if "choices" in meta else None  # None: argparse's own default
+        p.add_argument(meta["flag"], default=meta.get("cli_default"), help=meta["help"], choices=choices)
 
 
 def add_threads_option(p: argparse.ArgumentParser) -> None:
@@ -148,6 +148,7 @@ def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), optio
         raise InputError(f"{option} {str(exc).removeprefix('cannot write ')}") from None
     if target.stream:
         return out
+    assert target.path is not None, "standard output is a stream"
     for source in inputs:
         if source is not None and _same_file(target.path, Path(source)):
             raise InputError(f"{option} {out} is also an input ({source}); writing it would destroy that input")

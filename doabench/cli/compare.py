@@ -79,7 +79,10 @@ def main(args: argparse.Namespace) -> int:
     breakdowns = []
     if args.silence:
         if comparisons:  # each run over the episodes it shares with the first (all compared runs share them)
-            pairs = [(first, comparisons[0].pairing.frames_a)] + [(c.pairing.b, c.pairing.frames_b) for c in comparisons]
+            compared = [(first, comparisons[0].pairing.frames_a)] + [(c.pairing.b, c.pairing.frames_b)
+                                                                      for c in comparisons]
+            # none is dropped: with --silence, cmp.compare refuses a run without per-frame estimates
+            pairs = [(run, run_frames) for run, run_frames in compared if run_frames is not None]
         else:
             frames = cmp._frames_by_episode(first)
             if frames is None:

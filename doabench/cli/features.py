@@ -63,7 +63,8 @@ def _sidecar(args, extractor, result, sr: int, resampled: bool) -> dict:
         "doabench_version": __version__,
     }
     if args.kind in MAP_KINDS:
-        el, az = grid_angles(*extractor.resolution, planar=extractor.array.planar)
+        n_theta, n_phi = extractor.resolution
+        el, az = grid_angles(n_theta, n_phi, planar=extractor.array.planar)
         meta.update(
             resolution="%dx%d" % extractor.resolution,
             delays=extractor.mode,

@@ -157,7 +157,9 @@ def maps(args: argparse.Namespace) -> int:
         print(f"doabench plot: warning: frame {args.frame} is silent (its maps are zero); pick a voice-active frame",
               file=sys.stderr)
     meta = found["episode"].metadata or {}
-    scene = meta.get("scene") if isinstance(meta.get("scene"), dict) else {}
+    scene = meta.get("scene")
+    if not isinstance(scene, dict):
+        scene = {}
     bits = [f"{args.task} episode {args.episode}, frame {args.frame}"]
     t60 = scene.get("t60")
     if t60 is None and meta.get("task"):

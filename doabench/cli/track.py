@@ -187,6 +187,7 @@ def main(args: argparse.Namespace) -> int:
     if args.vad == "truth":
         from doabench.framing import samples_from_frame_vad
 
+        assert truth is not None, "main() refused --vad truth without --truth"
         if not truth["has_vad"]:
             raise InputError(f"--vad truth: {args.truth} has no vad column")
         sample_vad = samples_from_frame_vad(truth["vad"], rec.samples, spec.window, spec.hop)
@@ -202,13 +203,13 @@ def main(args: argparse.Namespace) -> int:
         from doabench.metrics import score_episode, score_frames
 
         # doabench run's scoring (doabench.metrics): invalid truth unscored, planar arrays folded
-        scored = score_frames(out["directions"], truth["directions"], truth["vad"], truth["valid"], array.planar)
+        planar = bool(array.planar)  # MicArray settles None (detect) to a bool
+        scored = score_frames(out["directions"], truth["directions"], truth["vad"], truth["valid"], planar)
         errors = np.full(len(table), np.nan)
         errors[scored.keep] = scored.errors
         table["error_deg"] = errors
-        m = score_episode(out["directions"], truth["directions"], truth["vad"], truth["valid"], array.planar,
-                          out["times"])
-        print(score_line(args.truth, m, array.planar))
+        m = score_episode(out["directions"], truth["directions"], truth["vad"], truth["valid"], planar, out["times"])
+        print(score_line(args.truth, m, planar))
     with atomic_path(args.out) as tmp:
         table.to_csv(tmp, index=False, float_format="%.4f")
     written.append(args.out)

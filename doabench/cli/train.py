@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from doabench.cli.common import add_tracker_options, use_threads
 
@@ -86,7 +87,7 @@ def build_recipe(args: argparse.Namespace):
 
     preset = args.preset or "paper"
     recipe = get_recipe(preset)
-    changes = {"seed": 0 if args.seed is None else args.seed}
+    changes: dict[str, Any] = {"seed": 0 if args.seed is None else args.seed}
     for arg, key in (("epochs", "epochs"), ("epoch_size", "trajectories_per_epoch"), ("cache_size", "cache_size"),
                      ("val_trajectories", "val_trajectories")):
         if getattr(args, arg) is not None:

@@ -17,7 +17,7 @@ from doabench.datasets.layout import EpisodeRecord
 from doabench.datasets.schema import TRUTH_KEYS, FeatureRequest
 from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
-from doabench.errors import InputError
+from doabench.errors import ConfigError, InputError
 from doabench.features.kinds import DEFAULT_RESOLUTION, EXTRACTOR_KINDS, HALF_KINDS, MAP_KINDS, storage_path
 from doabench.features.plan import ObservationPlan
 from doabench.framing import FrameSpec
@@ -38,12 +38,19 @@ def one_thread() -> Iterator[None]:
         torch.set_num_threads(previous)
 
 
+def _map_grid(request: FeatureRequest) -> tuple[int, int]:
+    """The SRP grid of an srp request (``parse_feature`` always gives one)."""
+    if request.resolution is None:
+        raise ConfigError(f"feature {request.kind!r} needs a resolution, e.g. {request.kind}:16x32")
+    return request.resolution
+
+
 def requests_plan(requests: Sequence[FeatureRequest], array: MicArray, frame_spec: FrameSpec, delays: str = "nearest"
                   ) -> ObservationPlan | None:
     """The observation plan of the computed features of ``requests`` (None when only audio is
     stored: then nothing is computed): srp and srp_max on every requested srp grid, gcc and
     spectrogram once."""
-    srp = [r.resolution for r in requests if r.kind in MAP_KINDS]
+    srp = [_map_grid(r) for r in requests if r.kind in MAP_KINDS]
     once = tuple(r.kind for r in requests if r.kind in EXTRACTOR_KINDS and r.kind not in MAP_KINDS)
     kinds = (MAP_KINDS if srp else ()) + once
     if not kinds:

@@ -193,7 +193,7 @@ class GenerationResult:
 
 def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = None,
                  features: str | Sequence[str] = "srp:16x32", shard: tuple[int, int] | None = None,
-                 workers: int = 1, float16: bool = False, sample_vad: bool = False, compression: str = "gzip",
+                 workers: int | None = 1, float16: bool = False, sample_vad: bool = False, compression: str = "gzip",
                  delays: str = "nearest", device: str | None = None, backend: str = "builtin",
                  progress: bool | Callable[[int], None] = True, engine: str = "local",
                  ray_address: str | None = None, **source_options: Any) -> GenerationResult:
@@ -237,6 +237,7 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
                                device, source_options)
     indices = shard_indices(episodes, shard)
     if not indices:
+        assert shard is not None, "without a shard every episode is kept, and there is at least one"
         raise ConfigError(f"shard {shard[0]}/{shard[1]} of {episodes} episodes is empty")
     folder = parts_dir(out)
 
@@ -358,6 +359,7 @@ def _run(spec: TaskSpec, requests, computer_kwargs: dict[str, Any], todo: list[i
 
             return run_ray(spec, requests, computer_kwargs, todo, folder, compression, workers, done, tag,
                            address=ray_address)
+        assert workers is not None, "make_dataset gives the local engine a worker count"
         if workers == 1:
             from doabench.datasets.compute import EpisodeComputer
 

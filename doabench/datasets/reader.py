@@ -63,12 +63,11 @@ class DatasetFile:
             self.task_spec: dict[str, Any] = loads_attr(a.get("task_spec", "{}"), "task_spec", self.path)
             self.items: list[str] = list(loads_attr(a.get("features", "[]"), "features", self.path))
             self.frames = FrameSpec(**loads_attr(a.get("frames", "{}"), "frames", self.path))
-            self.requested = ([int(i) for i in self.file["requested"][()]] if "requested" in self.file else None)
+            requested = [int(i) for i in self.file["requested"][()]] if "requested" in self.file else None
             eps = self.file[EPISODES]
             self.n_groups = len(eps)
             self.indices = sorted(int(name) for name, g in eps.items() if name.isdigit() and is_complete(g))
-            if self.requested is None:
-                self.requested = list(self.indices)
+            self.requested: list[int] = list(self.indices) if requested is None else requested
         except (OSError, KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, InputError):
                 self.file.close()

@@ -375,6 +375,12 @@ def summary_metrics(rows_a: Sequence[dict[str, Any]], rows_b: Sequence[dict[str,
     return out
 
 
+def _since_voice_between(lo: int, hi: int | None) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """Selects the frames ``lo`` to ``hi - 1`` since the last voice-active frame (``lo`` and more when
+    ``hi`` is None), from ``(vad, frames since voice)``."""
+    return lambda vad, since: (since >= lo) & ((since < hi) if hi else True)
+
+
 def silence_metrics(holds: Sequence[int] = ()) -> list[Metric]:
     """RMSAE by frames since the last voice-active frame, before and after the first voice, and
     with the estimates held after each of ``holds`` silent frames (all need per-frame estimates)."""
@@ -382,7 +388,7 @@ def silence_metrics(holds: Sequence[int] = ()) -> list[Metric]:
     for lo, hi in SILENCE_BUCKETS:
         name = f"{lo}-{hi - 1}" if hi else f"{lo}+"
         out.append(Metric(f"rmsae_since_voice_{name}", f"RMSAE {name} frames after voice", "deg", False,
-                          _frame_rms_stats(lambda v, s, lo=lo, hi=hi: (s >= lo) & ((s < hi) if hi else True)),
+                          _frame_rms_stats(_since_voice_between(lo, hi)),
                           _rms, frames=True))
     out += [Metric("rmsae_before_first_voice", "RMSAE before the first voice", "deg", False,
                    _frame_rms_stats(lambda v, s: s < 0), _rms, frames=True),
@@ -451,6 +457,7 @@ def compare_scope(p: Pairing, metric: Metric, positions: np.ndarray, strata: Seq
     fb = [p.frames_b[i] for i in positions] if p.frames_b is not None else None
     ones = np.ones((1, len(positions)))
     if metric.quantile is not None:  # the exact quantile, as the leaderboards compute it
+        assert fa is not None and fb is not None, "quantile metrics are compared only with per-frame estimates"
         point = [float(np.percentile(_voiced_errors(f)[0], 100 * metric.quantile))
                  if _voiced_errors(f)[0].size else float("nan") for f in (fa, fb)]
     else:
@@ -637,20 +644,21 @@ def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DE
                 row = [f"`{scope}`" + (f" (T60 {_g(first.t60)} s, SNR {_g(first.snr)} dB)" if first.t60 is not None
                                        else ""), str(first.n_episodes)]
                 for key in shown:
-                    r = metrics.get(key)
-                    row += ["—", "—"] if r is None else [f"{_fmt(r.a, r.metric.unit)} / {_fmt(r.b, r.metric.unit)}",
-                                                         f"{_diff_text(r)}, {r.verdict}"]
+                    cell = metrics.get(key)
+                    row += ["—", "—"] if cell is None else [
+                        f"{_fmt(cell.a, cell.metric.unit)} / {_fmt(cell.b, cell.metric.unit)}",
+                        f"{_diff_text(cell)}, {cell.verdict}"]
                 table.append(row)
             lines += ["", "### Per cell", ""] + _table(header, table)
         for note in c.notes:
             lines += ["", f"Note: {note}."]
         lines.append("")
-    for run, table, oracle, held in breakdowns:
+    for run, by_silence, oracle, held in breakdowns:
         lines += [f"## Where the error of `{run.label}` is: frames since the last voice-active frame", "",
                   f"`{run.path}`, {run.task.get('id')} v{run.task.get('version')}"
                   f"{'' if not comparisons else ', over the episodes compared above'}.", ""]
         lines += _table(["frames since voice", "frames", "RMSAE (deg)", "share of the squared error"],
-                        [[label, f"{n:,}", _fmt(rms, "deg"), _fmt(share, "")] for label, n, rms, share in table])
+                        [[label, f"{n:,}", _fmt(rms, "deg"), _fmt(share, "")] for label, n, rms, share in by_silence])
         lines += ["", f"Hold-the-truth oracle (the true direction of the last voice-active frame, 90° before the first): "
                       f"RMSAE all frames {_fmt(oracle, 'deg')} deg.", ""]
         lines += [f"Held after {h} silent frames: RMSAE all frames {_fmt(v, 'deg')} deg." for h, v in held.items()]

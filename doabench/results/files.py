@@ -221,7 +221,7 @@ def writes_to_stdout(path: str | os.PathLike | None) -> bool:
 def _copy_into(out: Output, source: Path) -> None:
     """Write the finished temporary file ``source`` through into the stream ``out``."""
     try:
-        if out.stdout:
+        if out.path is None:  # standard output
             if sys.__stdout__ is not None:
                 sys.__stdout__.flush()
             with open(1, "ab", closefd=False) as dst, open(source, "rb") as src:
@@ -241,7 +241,7 @@ def _copy_into(out: Output, source: Path) -> None:
 def _stream_path(out: Output, suffix: str | None, reserve: int = 0) -> Iterator[Path]:
     # The writers (HDF5, matplotlib, pandas, safetensors) want a seekable file by name: the output
     # is assembled in the temporary folder ($TMPDIR), then copied into the stream as one piece.
-    name = "stdout" if out.stdout else out.path.name
+    name = "stdout" if out.path is None else out.path.name
     fd, tmp_name = tempfile.mkstemp(prefix=f"doabench-{name}.", suffix=suffix or Path(name).suffix or ".tmp")
     os.close(fd)
     tmp = Path(tmp_name)
@@ -278,6 +278,7 @@ def atomic_path(path: str | Path, suffix: str | None = None, tmp: str | Path | N
             yield through
         return
     target = out.path
+    assert target is not None, "standard output is a stream"
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         if tmp is None:

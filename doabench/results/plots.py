@@ -15,7 +15,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Sequence, TypedDict
 
 import numpy as np
 
@@ -316,7 +316,17 @@ def plot_rmsae_vs_speed(runs: Sequence[dict[str, Any]], out: str | Path, title: 
 
 
 # -- Fig. 7: one episode ------------------------------------------------------------------------------
-def episode_frames(results: dict[str, Any], episode: int) -> dict[str, np.ndarray]:
+class EpisodeFrames(TypedDict):
+    """One episode's stored frames (:func:`episode_frames`)."""
+
+    times: np.ndarray
+    estimates: np.ndarray
+    truth: np.ndarray
+    row: dict[str, Any]
+    vad: np.ndarray | None  # results files written before the VAD was kept per frame have none
+
+
+def episode_frames(results: dict[str, Any], episode: int) -> EpisodeFrames:
     """Stored per-frame times, estimates and truth of the ``episode``-th row of a results file."""
     rows = results.get("episodes") or []
     frames = results.get("frames")
@@ -611,10 +621,11 @@ def conventions_figure(array, resolution: tuple[int, int]):
     ax = axes[2]
     A, E = np.meshgrid(az, el)
     ax.scatter(A.ravel(), E.ravel(), s=12, color="C0", label=f"{n_theta}x{n_phi} grid points")
-    for name, (a, e) in {"+x (az 0°, el 90°)": (0, 90), "+y (az 90°)": (90, 90), "−x (az −180°)": (-180, 90),
-                         "−y (az −90°)": (-90, 90), "up, +z (el 0°)": (0, 0), "down, −z (el 180°)": (0, 180)}.items():
-        ax.plot(a, e, "o", ms=9, mfc="none", mec="C3")
-        ax.annotate(name, (a, e), fontsize=7, color="C3", xytext=(5, 4), textcoords="offset points")
+    named_directions = {"+x (az 0°, el 90°)": (0, 90), "+y (az 90°)": (90, 90), "−x (az −180°)": (-180, 90),
+                        "−y (az −90°)": (-90, 90), "up, +z (el 0°)": (0, 0), "down, −z (el 180°)": (0, 180)}
+    for name, (az_deg, el_deg) in named_directions.items():
+        ax.plot(az_deg, el_deg, "o", ms=9, mfc="none", mec="C3")
+        ax.annotate(name, (az_deg, el_deg), fontsize=7, color="C3", xytext=(5, 4), textcoords="offset points")
     ax.set_xlim(-190, 190)
     ax.set_ylim(190, -10)
     ax.set_xticks(np.arange(-180, 181, 45))

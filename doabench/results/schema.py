@@ -17,7 +17,7 @@ SCHEMA_FILE = "results-1.schema.json"
 
 @functools.lru_cache(maxsize=1)
 def _schema_text() -> str:
-    return resources.files("doabench.results").joinpath("schemas", SCHEMA_FILE).read_text()
+    return resources.files("doabench.results").joinpath("schemas").joinpath(SCHEMA_FILE).read_text()
 
 
 def results_schema() -> dict[str, Any]:

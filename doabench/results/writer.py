@@ -54,7 +54,8 @@ def configuration(task_id: str, task_version: Any, tracker_id: str, options: Map
 def results_configuration(results: Mapping[str, Any]) -> dict[str, Any]:
     """:func:`configuration` of a results dictionary (or a loaded results file)."""
     task, tracker = results.get("task") or {}, results.get("tracker") or {}
-    return configuration(task.get("id"), task.get("version"), tracker.get("id") or tracker.get("name"),
+    # str(): configuration() makes text of them anyway, a missing id included
+    return configuration(str(task.get("id")), task.get("version"), str(tracker.get("id") or tracker.get("name")),
                          tracker.get("options"), tracker.get("weights_hash"),
                          (results.get("features") or {}).get("delays"))
 

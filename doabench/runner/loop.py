@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence, TypeVar, cast
+from typing import Any, Callable, Mapping, Sequence, TypeVar
 
 import numpy as np
 
@@ -50,8 +50,8 @@ def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
         raise TrackerError(f"tracker {tracker.name!r} returned a non-finite direction {a} at frame {frame}")
     if not np.any(a):
         raise TrackerError(f"tracker {tracker.name!r} returned a zero vector at frame {frame}")
-    # scaled by its largest component first: [1e200, 0, 0] is the x axis, not 0; normalize keeps the array type
-    return cast(np.ndarray, normalize(a))
+    # scaled by its largest component first: [1e200, 0, 0] is the x axis, not 0
+    return normalize(a)
 
 
 def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
@@ -63,7 +63,7 @@ def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
     if bad.any():
         raise TrackerError(f"tracker {tracker.name!r} returned a non-finite or zero direction at frame "
                            f"{int(np.argmax(bad))}")
-    return cast(np.ndarray, normalize(a))  # normalize keeps the array type
+    return normalize(a)
 
 
 def guarded(tracker: Tracker, what: str, fn: Callable[..., T], *args: Any) -> T:

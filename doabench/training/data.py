@@ -13,7 +13,7 @@ Every item is ``{"audio": (M, L) float32, "sample_vad": (L,) bool, "truth": (T, 
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -105,6 +105,14 @@ class SimulatedItems(Dataset):
                 "vad": torch.from_numpy(truth["vad"])}
 
 
+class IndexedItems(Protocol):
+    """What :class:`NetworkInputs` reads from the items it wraps (torch's Dataset declares no length)."""
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, k: int) -> dict[str, torch.Tensor]: ...
+
+
 class NetworkInputs(Dataset):
     """``items`` with each item's audio turned into the network input by ``to_input`` (features and
     the tracker's ``network_input``), so DataLoader workers do the feature work next to the
@@ -113,7 +121,7 @@ class NetworkInputs(Dataset):
     ``to_input(audio (M, L), sample_vad (L,)) -> input (C, T, ...)`` (no batch axis).
     """
 
-    def __init__(self, items: Dataset, to_input) -> None:
+    def __init__(self, items: IndexedItems, to_input) -> None:
         self.items, self.to_input = items, to_input
 
     def __len__(self) -> int:

@@ -138,7 +138,7 @@ class EpochData:
             time.sleep(30)
         return TrajectoryCache(self.train_cache_dir)
 
-    def epoch_items(self, epoch: int, snr: tuple[float, float]) -> tuple[Dataset, int]:
+    def epoch_items(self, epoch: int, snr: tuple[float, float]) -> tuple[DatasetItems | CachedItems | NetworkInputs, int]:
         """Epoch ``epoch``'s items at the phase's ``snr`` range, and how many cached trajectories
         they draw from (0 when not from a cache)."""
         r = self.recipe

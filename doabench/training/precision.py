@@ -97,7 +97,8 @@ class PrecisionPolicy:
         """Move ``network`` to the device (and layout) in place."""
         network.to(self.device)
         if self.channels_last:
-            network.to(memory_format=torch.channels_last_3d)
+            # Module.to documents memory_format (keyword only); torch's overloads leave it out.
+            network.to(memory_format=torch.channels_last_3d)  # type: ignore[call-overload]
 
     def autocast(self) -> ContextManager:
         """The context of a forward pass: bf16 activations, or nothing for float32."""

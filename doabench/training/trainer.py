@@ -112,8 +112,8 @@ class Trainer:
         if note:
             log(note)
         torch.manual_seed(recipe.seed)  # network initialisation
-        self.tracker = tracker if tracker is not None else make_tracker(options.tracker, **options.tracker_options)
-        check_trainable(self.tracker, options.tracker)
+        built = tracker if tracker is not None else make_tracker(options.tracker, **options.tracker_options)
+        self.tracker = check_trainable(built, options.tracker)
         if self.saved is not None:
             run_state.check_same_task(self.saved, self.spec, self.out)
         # What the run starts from: recorded in the checkpoint and in exported weights files.
@@ -205,7 +205,7 @@ class Trainer:
         from doabench.arrays import get_array
 
         self.network.eval()
-        scores = ValidationScores(self.hold_frames, get_array(self.spec.array).planar)
+        scores = ValidationScores(self.hold_frames, bool(get_array(self.spec.array).planar))
         for x, truth, vad in val:
             x, truth = self.policy.to_device(x), truth.to(self.device)
             scores.add(self.forward(x, truth).cpu(), truth.cpu(), vad)  # (B, T, 3)
@@ -241,7 +241,9 @@ class Trainer:
             self.log(f"starting weights: val loss {start_metrics['val_loss']:.4f}, val RMSAE "
                      f"{start_metrics['val_rmsae_all']:.2f} deg (non-silent {start_metrics['val_rmsae_nonsilent']:.2f})")
         ran = 0
-        self.stop_state = {"kept": progress.epoch, "epoch": None}
+        # where the run stands, for the message of an interrupted run: epochs kept, and within an epoch the
+        # batches done of how many since when
+        self.stop_state: dict[str, Any] = {"kept": progress.epoch, "epoch": None}
         for epoch in range(progress.epoch, self.recipe.epochs):
             if self.options.max_epochs is not None and ran >= self.options.max_epochs:
                 break
