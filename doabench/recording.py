@@ -33,28 +33,29 @@ def read_audio(path: str | Path) -> tuple[np.ndarray, int]:
     return np.ascontiguousarray(data.T), int(sr)
 
 
-def write_float_wav(path: str | Path, audio: np.ndarray, fs: int) -> None:
-    """Write ``audio`` ``(n_channels, samples)`` as a 32-bit float WAV whose bytes depend only on
+def float_wav_bytes(audio: np.ndarray, fs: int) -> bytes:
+    """``audio`` ``(n_channels, samples)`` as the bytes of a 32-bit float WAV that depend only on
     the samples and ``fs``.
 
     libsndfile adds a PEAK chunk to float WAVs holding the time of writing (seconds since 1970),
     so the same simulation written in two different seconds gave two different files; that
     timestamp (the chunk's second 32-bit field) is set to 0 here. The peaks stay: readers that use
     them still find them."""
+    import io
+
     import soundfile as sf
 
-    sf.write(str(path), np.asarray(audio, dtype=np.float32).T, int(fs), subtype="FLOAT")
-    with open(path, "r+b") as f:
-        at = 12  # the chunks after "RIFF", size, "WAVE": id, 32-bit size, data (padded to even)
-        f.seek(at)
-        while (header := f.read(8)) and len(header) == 8 and header[:4] != b"data":
-            size = int.from_bytes(header[4:], "little")
-            if header[:4] == b"PEAK":
-                f.seek(at + 12)  # the chunk's version, then the timestamp
-                f.write(b"\0\0\0\0")
-                break
-            at += 8 + size + (size & 1)
-            f.seek(at)
+    buf = io.BytesIO()
+    sf.write(buf, np.asarray(audio, dtype=np.float32).T, int(fs), format="WAV", subtype="FLOAT")
+    data = bytearray(buf.getvalue())
+    at = 12  # the chunks after "RIFF", size, "WAVE": id, 32-bit size, data (padded to even)
+    while at + 8 <= len(data) and data[at:at + 4] != b"data":
+        size = int.from_bytes(data[at + 4:at + 8], "little")
+        if data[at:at + 4] == b"PEAK":
+            data[at + 12:at + 16] = bytes(4)  # the chunk's version, then the timestamp
+            break
+        at += 8 + size + (size & 1)
+    return bytes(data)
 
 
 def load_recording(path: str | Path, array: MicArray, fs: int, allow_resample: bool = False,

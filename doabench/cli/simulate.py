@@ -58,6 +58,7 @@ def _task_setup(task_id: str, librispeech: str | None):
 
     try:
         from doabench.envs.registry import get_task_spec
+        from doabench.envs.sources import make_speech_source
     except ImportError:
         raise ConfigError("--task needs the task registry (doabench.envs.registry), which is not installed") from None
     spec = get_task_spec(task_id)
@@ -67,16 +68,7 @@ def _task_setup(task_id: str, librispeech: str | None):
         raise ConfigError(f"task {spec.id!r} is a grid; simulate one of its cells (doabench list tasks)")
     # A registry may expose the parsed distribution; else the [scene] table is the distribution.
     dist = getattr(spec, "scene_distribution", None) or SceneDistribution.from_dict(dict(spec.params.get("scene", {})))
-    speech = dict(spec.params.get("speech", {}))
-    if speech.get("corpus", "embedded") == "embedded":
-        from doabench.corpora.speech import EmbeddedSpeechSource
-
-        source = EmbeddedSpeechSource()
-    else:
-        from doabench.corpora.speech import LibriSpeechSource
-
-        source = LibriSpeechSource(librispeech, speech.get("subset"))
-    return dist, source, spec.array
+    return dist, make_speech_source(dict(spec.params.get("speech", {})), librispeech), spec.array
 
 
 DEFAULT_SUBSETS = ("test-clean", "test-other")
@@ -142,6 +134,7 @@ def _task_episode(args: argparse.Namespace):
         raise ConfigError(f"--episode re-creates a task episode; drop {', '.join(clashes)}")
     try:
         from doabench.envs.registry import get_task_spec
+        from doabench.envs.simulated import SimulatedEpisodes
         from doabench.envs.sources import make_episode_source
     except ImportError:
         raise ConfigError("--task needs the task registry (doabench.envs), which is not installed") from None
@@ -149,6 +142,8 @@ def _task_episode(args: argparse.Namespace):
     if spec.kind != "simulated":
         raise ConfigError(f"task {spec.id!r} is a {spec.kind} task; simulate needs a simulated task")
     source = make_episode_source(spec, librispeech=args.librispeech, backend=args.backend, device=args.device)
+    if not isinstance(source, SimulatedEpisodes):  # a plug-in replacing the simulated kind
+        raise ConfigError(f"task {spec.id!r}: its episode source draws no scenes for simulate to write")
     if not 0 <= args.episode < len(source):
         raise ConfigError(f"task {spec.id!r} has {len(source)} episodes; --episode must be in 0..{len(source) - 1}")
     return source.scene(args.episode), source.speech, None
@@ -157,11 +152,11 @@ def _task_episode(args: argparse.Namespace):
 def write_outputs(folder: Path, episode, scene_info: dict) -> None:
     """Write audio.wav, truth.csv and scene.json into ``folder``."""
     from doabench.framing import FrameSpec
-    from doabench.recording import write_float_wav
+    from doabench.recording import float_wav_bytes
     from doabench.results.files import atomic_path, write_text
 
     with atomic_path(folder / "audio.wav") as tmp:
-        write_float_wav(tmp, episode.audio, episode.fs)
+        tmp.write_bytes(float_wav_bytes(episode.audio, episode.fs))
     frames = FrameSpec(fs=episode.fs)
     truth = episode.frame_truth(frames)
     with atomic_path(folder / "truth.csv") as tmp, open(tmp, "w", newline="") as f:

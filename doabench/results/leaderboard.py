@@ -153,8 +153,8 @@ def _distribution_csv(results: dict[str, Any]) -> str:
 
 def _distribution_notes(board: TaskBoard) -> list[str]:
     """The legend of the marks: which training task each learned tracker's row is measured against."""
-    verdicts = {run.tracker_id: training_distribution(run.results) for run in board.runs}
-    verdicts = {k: v for k, v in verdicts.items() if v is not None}
+    found = {run.tracker_id: training_distribution(run.results) for run in board.runs}
+    verdicts = {k: v for k, v in found.items() if v is not None}
     if not verdicts:
         return []
     lines = ["", f"*{IN_MARK}*: a learned tracker trained on this task's simulator, array and scene family, so its "
