@@ -147,16 +147,22 @@ def test_layers_in_the_doc_match_the_contract():
 
 
 def test_every_package_is_in_the_distribution():
-    """pyproject.toml lists the packages by hand (baselines/ installs as doabench_baselines and tasks/
-    as doabench.task_specs, which setuptools' discovery cannot map): every folder with an
-    ``__init__.py`` must be in the list, or a non-editable install would lack it."""
+    """setup.py discovers doabench's packages and adds the two renamed folders (baselines/ installs
+    as doabench_baselines and tasks/ as doabench.task_specs, pyproject.toml's package-dir): every
+    folder with an ``__init__.py`` must be among them, or a non-editable install would lack it."""
+    import runpy
+
     try:
         import tomllib
     except ImportError:  # Python 3.10: the test extra's tomli
         import tomli as tomllib
 
     tool = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
-    listed, renamed = set(tool["packages"]), {v: k for k, v in tool["package-dir"].items()}
+    assert "packages" not in tool, "the packages come from setup.py's discovery, not a list in pyproject.toml"
+    setup_py = runpy.run_path(str(ROOT / "setup.py"), run_name="doabench_setup")
+    renamed = {v: k for k, v in tool["package-dir"].items()}
+    assert sorted(renamed.values()) == sorted(setup_py["RENAMED_PACKAGES"])
+    listed = set(setup_py["packages"](str(ROOT)))
     found = set()
     for init in [*(ROOT / "doabench").rglob("__init__.py"), ROOT / "baselines" / "__init__.py",
                  ROOT / "tasks" / "__init__.py"]:
