@@ -190,6 +190,11 @@ class NeuralTracker(doabench.Tracker):
         return self._frame_spec
 
     @property
+    def trained_array(self) -> doabench.MicArray:
+        """The array the weights were trained for (the ``array`` option, else the weights' own)."""
+        return self._array
+
+    @property
     def receptive_field_frames(self) -> int | None:
         return getattr(self.model, "receptive_field", None)
 

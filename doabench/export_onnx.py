@@ -25,9 +25,9 @@ FORMATS = ("onnx",)
 def example_features(tracker: Any, n_frames: int = 12, seed: int = 0) -> dict[str, np.ndarray]:
     """Features of random audio on the tracker's frame grid and array: a realistic example input."""
     spec = tracker.frame_spec
-    array = getattr(tracker, "_array", None)
+    array = getattr(tracker, "trained_array", None)
     if array is None:
-        raise ConfigError(f"tracker {tracker.name!r} has no array to build an example input for")
+        raise ConfigError(f"tracker {tracker.name!r} has no trained_array to build an example input for")
     samples = spec.window + spec.hop * (n_frames - 1)
     audio = (0.1 * np.random.default_rng(seed).standard_normal((array.n_mics, samples))).astype(np.float32)
     return tracker.observation_spec.plan(array).observations(audio, None)
@@ -42,6 +42,7 @@ def metadata(tracker: Any, tracker_id: str) -> dict[str, str]:
         "doabench_features": json.dumps(list(tracker.features)),
         "doabench_resolution": str(d.get("resolution") or ""),
         "doabench_frame": json.dumps(tracker.frame_spec.to_dict()),
+        "doabench_observations": json.dumps(tracker.observation_spec.to_dict()),
         "doabench_array": str(d.get("array") or ""),
         "doabench_io": "input: network input for a whole episode, frame axis 2; output directions (batch, frames, 3)",
     }
