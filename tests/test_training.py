@@ -589,3 +589,33 @@ def test_the_trainer_module_keeps_the_names_other_code_imports():
     for name in ("Trainer", "TrainOptions", "cpu_has_native_bf16", "default_workers", "available_cores", "write_log",
                  "plot_history", "LOCK_NAME", "CSV_COLUMNS", "resume_precision"):
         assert hasattr(trainer_module, name), name
+
+
+def test_the_frame_difference_loss_trains_is_recorded_and_a_resume_must_agree(tmp_path, caches, capsys):
+    from doabench.cli.main import build_parser, main
+    from doabench.cli.train import build_recipe
+
+    trainer = make_trainer(tmp_path / "run", caches, tiny_recipe(delta_loss=2.0), max_epochs=1)
+    items = CachedItems(TrajectoryCache(caches[0]), 6, 123, 0, 4, (30.0, 30.0), FS)
+    batch = collate([items[k] for k in range(4)])
+    with torch.no_grad():
+        x = trainer.network_input(batch)
+        y = trainer.forward(x, batch["truth"])
+    from doabench.training.losses import tracking_loss
+    expected = float(tracking_loss(y, batch["truth"], 2.0))
+    assert trainer.train_step(batch) == pytest.approx(expected, rel=1e-5)
+    assert expected > float(torch.nn.functional.mse_loss(y, batch["truth"]))
+    trainer.run()
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["recipe"]["delta_loss"] == 2.0
+    with pytest.raises(doabench.DoabenchError, match=r"--delta-loss 0.5 \(the run's: 2.0\)"):
+        make_trainer(tmp_path / "run", caches, tiny_recipe(delta_loss=0.5), resume=True, recipe_options=("--delta-loss",))
+    args = build_parser().parse_args(["train", "--tracker", "spec-cnn2d", "--out", "r", "--delta-loss", "0.5"])
+    assert build_recipe(args).delta_loss == 0.5
+    assert build_recipe(build_parser().parse_args(["train", "--tracker", "spec-cnn2d", "--out", "r"])).delta_loss == 0
+    for bad in ("-1", "nan", "inf"):
+        assert main(["train", "--tracker", "spec-cnn2d", "--tracker-opt", "weights=random", f"--delta-loss={bad}",
+                     "--out", str(tmp_path / "r")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "--delta-loss" in err and "\n" not in err and "Traceback" not in err
+        assert not (tmp_path / "r").exists()

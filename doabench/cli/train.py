@@ -34,6 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr", metavar="LR[,LR...]",
                    help="learning rate of each curriculum phase, in order (paper: 1e-4,1e-5); one value sets "
                         "every phase")
+    p.add_argument("--delta-loss", type=float, metavar="WEIGHT",
+                   help="add WEIGHT x the MSE of the output's frame-to-frame change to the paper's MSE loss "
+                        "(beyond the paper; default 0: the paper's loss)")
     p.add_argument("--seed", type=int, help="run seed (network init and item seeds; default 0)")
     p.add_argument("--workers", type=int,
                    help="DataLoader worker processes that simulate and extract features (default: the preset's, "
@@ -89,7 +92,7 @@ def build_recipe(args: argparse.Namespace):
     recipe = get_recipe(preset)
     changes: dict[str, Any] = {"seed": 0 if args.seed is None else args.seed}
     for arg, key in (("epochs", "epochs"), ("epoch_size", "trajectories_per_epoch"), ("cache_size", "cache_size"),
-                     ("val_trajectories", "val_trajectories")):
+                     ("val_trajectories", "val_trajectories"), ("delta_loss", "delta_loss")):
         if getattr(args, arg) is not None:
             changes[key] = getattr(args, arg)
     if args.switch_epoch is not None:

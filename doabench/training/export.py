@@ -9,6 +9,7 @@ import torch
 
 from doabench.errors import ConfigError
 from doabench.training import checkpoint as ckpt
+from doabench.training.losses import describe_loss
 from doabench.training.protocol import check_trainable, feature_options
 
 
@@ -42,7 +43,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
             "hardware": f"{state.get('device', 'cpu')} ({platform.machine()}), "
                         f"{state.get('threads', '?')} torch threads",
             "cached_trajectories": row.get("n_cache") or None,
-            "loss": "MSE between the output and the true unit vector of every frame",
+            "loss": describe_loss(float(state["recipe"].get("delta_loss") or 0.0)),
             "optimizer": "Adam",
             "validation": {k: row.get(k) for k in ("val_loss", "val_rmsae_all", "val_rmsae_nonsilent", "val_rmsae_held")
                            if row.get(k) is not None},

@@ -51,6 +51,7 @@ class Recipe:
     duration_s: float = 20.0
     num_workers: int = 0
     seed: int = 0
+    delta_loss: float = 0.0        # weight of the frame-to-frame change loss (doabench.training.losses)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -68,6 +69,8 @@ class Recipe:
                 raise ConfigError(f"bad curriculum phase {p.to_dict()}")
         if self.data == "cache" and self.cache_size < 1:
             raise ConfigError("a cached-data recipe needs cache_size >= 1")
+        if not 0 <= self.delta_loss < float("inf"):
+            raise ConfigError(f"the frame-difference loss weight (--delta-loss) must be a number >= 0, got {self.delta_loss}")
         if not 0 < self.val_speaker_fraction < 1:
             raise ConfigError(f"val_speaker_fraction must be in (0, 1), got {self.val_speaker_fraction}")
 
@@ -151,6 +154,7 @@ RECIPE_OPTIONS: dict[str, Callable[[Recipe], Any]] = {
     "--val-trajectories": lambda r: r.val_trajectories,
     "--switch-epoch": lambda r: ",".join(str(p.start_epoch) for p in r.phases[1:]),
     "--lr": lambda r: ",".join(f"{p.lr:g}" for p in r.phases),
+    "--delta-loss": lambda r: r.delta_loss,
 }
 
 

@@ -2,7 +2,8 @@
 
 Per epoch: the curriculum phase sets SNR range, batch size and learning rate; items come seeded
 from :mod:`.epoch_data`; features are computed in torch from each batch; the loss is the MSE between
-the network output ``(B, T, 3)`` and the true unit vectors of every frame (section IV-C); then the
+the network output ``(B, T, 3)`` and the true unit vectors of every frame (section IV-C; a recipe may
+add a frame-difference term, :mod:`.losses`); then the
 fixed validation set is scored (:mod:`.validation`: pooled RMSAE over all and over voice-active
 frames), and the checkpoint (:mod:`.run_state`), ``log.csv`` and ``loss.png`` (:mod:`.run_log`) in
 the run folder are rewritten atomically. :mod:`.precision` decides the device arithmetic.
@@ -24,6 +25,7 @@ from doabench.training import checkpoint as ckpt
 from doabench.training import run_state
 from doabench.training.epoch_data import (EpochData, FeatureFn, available_cores, default_features,
                                           default_workers)
+from doabench.training.losses import tracking_loss
 from doabench.training.pipeline import DEFAULT_CACHE_ROOT
 from doabench.training.precision import PrecisionPolicy, cpu_has_native_bf16, resume_precision, training_device
 from doabench.training.progress import EpochProgress, loader_length
@@ -189,7 +191,7 @@ class Trainer:
         self.network.train()
         x = self.policy.to_device(self.network_input(batch))
         truth = batch["truth"].to(self.device)
-        loss = torch.nn.functional.mse_loss(self.forward(x, truth, self.train_forward), truth)
+        loss = tracking_loss(self.forward(x, truth, self.train_forward), truth, self.recipe.delta_loss)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()

@@ -39,7 +39,8 @@ class ValidationScores:
         self.active.append(vad.flatten())
 
     def metrics(self) -> dict[str, float]:
-        """``val_loss`` (the training loss over every frame) and the pooled RMSAE in degrees of
+        """``val_loss`` (the paper's MSE over every frame, without a recipe's frame-difference term, so
+        that runs compare) and the pooled RMSAE in degrees of
         all frames, of voice-active frames and of all frames under the hold rule."""
         truth = torch.cat(self.truths).double().numpy()
         active = torch.cat(self.active).numpy().astype(bool)
