@@ -200,3 +200,14 @@ def test_no_render_help_matches_what_is_drawn(tmp_path: Path, capsys) -> None:
     finally:
         plots.save_figure = original
     assert len(captured["patches"]) == 1 and "silent frames" in captured["legend"]
+
+
+def test_leaderboards_comparisons_and_legends_name_a_configuration_alike():
+    from doabench.results.compare import run_label
+    from doabench.results.ranking import RunFile
+
+    results = {"tracker": {"id": "srp-kalman:32x64", "options": {"weights": "/tmp/x/model.safetensors", "alpha": 0.5}},
+               "task": {"id": "sim-grid"}}
+    expected = "srp-kalman:32x64 (alpha=0.5, weights=model.safetensors)"
+    assert plots.tracker_label(results) == run_label(results) == expected
+    assert RunFile("a.json", "0" * 64, results).tracker_id == expected

@@ -34,6 +34,7 @@ import numpy as np
 
 from doabench.errors import InputError
 from doabench.results.files import load_results
+from doabench.results.labels import labelled
 from doabench.metrics import LAG_MAX_S, LAG_STEP_S, STATIC_SPEED_DEG_S, THRESHOLDS_DEG, lag_grid, score_frames
 
 N_RESAMPLES = 2000
@@ -75,9 +76,7 @@ def run_label(results: dict[str, Any]) -> str:
     """The tracker id, with its options when it had any (``cross3d:16x32 (weights=v3.safetensors)``)."""
     tracker = results.get("tracker") or {}
     name = str(tracker.get("id") or tracker.get("name") or "?")
-    options = tracker.get("options") or {}
-    shown = {k: (Path(str(v)).name if k == "weights" else v) for k, v in sorted(options.items())}
-    return name + (" (" + ", ".join(f"{k}={v}" for k, v in shown.items()) + ")" if shown else "")
+    return labelled(name, tracker.get("options"))
 
 
 def _distinct_labels(runs: Sequence[Run]) -> None:

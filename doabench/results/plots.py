@@ -20,6 +20,7 @@ from typing import Any, Sequence, TypedDict
 import numpy as np
 
 from doabench.errors import InputError
+from doabench.results.labels import labelled
 
 METRICS = ("rmsae_all", "rmsae_nonsilent")
 METRIC_LABELS = {"rmsae_all": "RMSAE, all frames [deg]", "rmsae_nonsilent": "RMSAE, non-silent frames [deg]"}
@@ -56,22 +57,13 @@ def save_figure(fig, out: str | Path, dpi: int = 110) -> list[Path]:
     return paths
 
 
-def _option_text(key: str, value: Any) -> str:
-    if key == "weights" and isinstance(value, str) and value != "random":
-        value = Path(value).name  # the file, not the folder it was read from: labels stay short
-    return f"{key}={value if isinstance(value, str) else json.dumps(value, sort_keys=True)}"
-
-
 def tracker_label(results: dict[str, Any]) -> str:
     """The tracker as a reader tells runs apart: its id and, when set, its options and delay mode
     (``srp-kalman:32x64 (alpha=0.5)``), so two configurations of one tracker never read the same."""
     tracker = results.get("tracker") or {}
     name = str(tracker.get("id") or tracker.get("name") or "?")
-    bits = [_option_text(str(k), v) for k, v in sorted((tracker.get("options") or {}).items())]
     delays = (results.get("features") or {}).get("delays")
-    if delays not in (None, "nearest"):
-        bits.append(f"delays={delays}")
-    return f"{name} ({', '.join(bits)})" if bits else name
+    return labelled(name, tracker.get("options"), [f"delays={delays}"] if delays not in (None, "nearest") else [])
 
 
 def _configuration_key(results: dict[str, Any]) -> str:

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from doabench.errors import InputError
+from doabench.results.labels import labelled
 
 SCHEMA_PREFIX = "doabench.results/"
 SUPPORTED_SCHEMAS = ("doabench.results/1",)
@@ -49,12 +50,7 @@ class RunFile:
         """The canonical tracker id (:func:`canonical_id`), with its options when the run had any (two
         configurations of one tracker are two rows that can be told apart): ``srp-kalman:32x64 (alpha=0.2)``."""
         tracker = self.results["tracker"]
-        base = canonical_id(self.results)
-        options = tracker.get("options") or {}
-        if not options:
-            return base
-        shown = {k: (Path(str(v)).name if k == "weights" else v) for k, v in sorted(options.items())}
-        return base + " (" + ", ".join(f"{k}={v}" for k, v in shown.items()) + ")"
+        return labelled(canonical_id(self.results), tracker.get("options"))
 
 
 @dataclass(frozen=True)
