@@ -211,3 +211,22 @@ def test_leaderboards_comparisons_and_legends_name_a_configuration_alike():
     expected = "srp-kalman:32x64 (alpha=0.5, weights=model.safetensors)"
     assert plots.tracker_label(results) == run_label(results) == expected
     assert RunFile("a.json", "0" * 64, results).tracker_id == expected
+
+
+def test_a_long_legend_label_widens_the_figure_not_squeezes_the_axes() -> None:
+    import matplotlib.pyplot as plt
+
+    bands = {"<5": 5.0, "5-15": 8.0, "15-30": 12.0, ">30": 20.0}
+    short = _with_speed_bands(_results("srp-max:8x16", 10.0), bands)
+    long = copy.deepcopy(short)
+    long["tracker"]["options"] = {"weights": "a-model-file-with-a-rather-long-descriptive-name.safetensors"}
+    widths = []
+    for runs in ([short], [short, long]):
+        fig = plots.rmsae_vs_speed_figure(runs)
+        fig.canvas.draw()
+        widths.append((fig.axes[0].get_window_extent().width / fig.dpi, fig.get_figwidth()))
+        _assert_legends_clear_of_axes(fig)
+        plt.close(fig)
+    (axes_short, fig_short), (axes_long, fig_long) = widths
+    assert axes_long == pytest.approx(axes_short, rel=0.05)
+    assert fig_long > fig_short + 1.0

@@ -142,8 +142,13 @@ def line_styles(n: int, colours: Sequence[str] = COLOURS, markers: Sequence[str]
 
 
 def _legend_outside(ax, **kwargs: Any):
-    """A legend to the right of ``ax``, clear of its data."""
-    return ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
+    """A legend to the right of ``ax``, clear of its data. The figure widens by the legend's width,
+    so that ``tight_layout`` does not squeeze the axes to make room for long labels."""
+    legend = ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
+    fig = ax.figure
+    width_in = legend.get_window_extent(fig.canvas.get_renderer()).width / fig.dpi
+    fig.set_figwidth(fig.get_figwidth() + width_in + 0.1)
+    return legend
 
 
 # -- Figs. 6 and 8: RMSAE versus T60 ------------------------------------------------------------------
