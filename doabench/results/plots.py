@@ -423,9 +423,7 @@ def episode_figure(results: dict[str, Any], episode: int, maxima: np.ndarray | N
     handles, _ = axes[0].get_legend_handles_labels()
     if vad is not None and not np.all(vad):
         handles.append(Patch(color="0.85", label="silent frames"))
-    # Right of the elevation panel, never over either panel's lines.
-    axes[0].legend(handles=handles, fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0),
-                   borderaxespad=0.0)
+    _legend_outside(axes[0], handles=handles)  # right of the elevation panel, never over either panel's lines
     row = f["row"]
     scene = ", ".join(x for x in (
         f"T60 {row['t60']:.2g} s" if row.get("t60") is not None else "",
