@@ -120,7 +120,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     for text in trackers:
         instance = make_tracker(text, **options)
         for task_id in task_ids:
-            spec, _ = RunSpec.build(text, task_id, options, delays, instance=instance)
+            spec, _ = RunSpec.build(text, task_id, options, delays, instance=instance, env_options=env_options)
             specs.setdefault((spec.tracker, task_id), spec)
         versions[spec.tracker] = instance.version
         order.append(spec.tracker)

@@ -84,3 +84,76 @@ def test_committed_results_carry_the_names_their_configuration_gives() -> None:
 
     for path in sorted((ROOT / "results").glob("*.json")):
         assert results_path(json.loads(path.read_text()), path.parent).name == path.name
+
+
+# -- task options are part of a run's identity ---------------------------------------------------------
+def test_a_run_on_another_simulator_is_another_configuration(tmp_path: Path, capsys) -> None:
+    """--backend changes the episodes: the second run must not replace the first, the leaderboard
+    shows two rows, the file says which options it ran with and its reproduce line repeats them."""
+    from doabench.results.leaderboard import build_leaderboards, reproduce_command
+
+    out = tmp_path / "bk"
+    assert _run(out, "--tracker", "srp-max:4x8", "--backend", "pyroomacoustics") == 0
+    assert _run(out, "--tracker", "srp-max:4x8") == 0
+    files = sorted(out.glob("*.json"))
+    assert [p.name for p in files][0] == "sim-demo__srp-max_4x8.json" and len(files) == 2, files
+    other = json.loads(files[1].read_text())
+    assert other["task"]["options"] == {"backend": "pyroomacoustics"}
+    assert json.loads(files[0].read_text())["task"]["options"] == {}
+    assert "--backend pyroomacoustics" in reproduce_command(other)
+    page = build_leaderboards(out)["sim-demo.md"]
+    assert "`srp-max:4x8`" in page and "`srp-max:4x8 [backend=pyroomacoustics]`" in page
+    assert "superseded" not in page.lower()
+
+
+def test_task_options_name_the_file_only_where_they_differ_from_the_task() -> None:
+    from doabench.envs.registry import get_task_spec
+    from doabench.envs.sources import task_identity
+
+    demo = get_task_spec("sim-demo")
+    assert task_identity(demo, {"librispeech": "/somewhere", "backend": "builtin", "device": "cpu"}) == {}
+    assert task_identity(demo, {"backend": "pyroomacoustics"}) == {"backend": "pyroomacoustics"}
+    assert task_identity(demo, {"scene_overrides": {"duration_s": 3}}) == {"scene_overrides": {"duration_s": 3}}
+    # A task rendered by its own simulator: that simulator (or builtin, which stands for it) is its default.
+    pra = get_task_spec("sim-walk-pra")
+    assert task_identity(pra, {"backend": "pyroomacoustics"}) == task_identity(pra, {"backend": "builtin"}) == {}
+    # LOCATA: the split and the VAD change the episodes and the scoring; the corpus root does not.
+    locata = get_task_spec("locata-3")
+    assert task_identity(locata, {"locata_root": "/data", "split": "dev", "vad": "webrtc"}) == {}
+    assert task_identity(locata, {"split": "eval", "vad": "corpus"}) == {"split": "eval", "vad": "corpus"}
+    plain = results_stem("locata-3", "srp-max:16x32")
+    assert results_stem("locata-3", "srp-max:16x32", task_options={}) == plain
+    assert len({plain, results_stem("locata-3", "srp-max:16x32", task_options={"vad": "corpus"}),
+                results_stem("locata-3", "srp-max:16x32", task_options={"split": "eval"})}) == 3
+
+
+def test_a_file_written_before_task_options_were_recorded_reads_them_from_its_source() -> None:
+    from doabench.results.writer import results_configuration, results_task_options
+
+    data = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
+    assert "options" not in data["task"] and results_task_options(data) == {}
+    data["task"]["source"] = {**data["task"]["source"], "simulator": "pyroomacoustics"}
+    assert results_task_options(data) == {"backend": "pyroomacoustics"}
+    assert results_configuration(data)["task_options"] == {"backend": "pyroomacoustics"}
+
+
+def test_compare_refuses_runs_of_other_task_options(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "bk"
+    assert _run(out, "--tracker", "srp-max:4x8", "--backend", "pyroomacoustics") == 0
+    assert _run(out, "--tracker", "srp-max:4x8") == 0
+    a, b = sorted(out.glob("*.json"))
+    capsys.readouterr()
+    assert main(["compare", str(a), str(b)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "different task options" in err and len(err.splitlines()) == 1
+
+
+def test_a_plug_in_trackers_reproduce_line_uses_the_id_that_was_typed() -> None:
+    from doabench.results.leaderboard import reproduce_command
+
+    data = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
+    data["tracker"] = {**data["tracker"], "id": "fixed-front", "name": "fixed-front",
+                       "given_id": "my_trackers.fixed:FixedFront"}
+    assert "--tracker my_trackers.fixed:FixedFront " in reproduce_command(data)
+    data["tracker"] = {**data["tracker"], "id": "srp-max:16x32", "name": "srp-max", "given_id": "srp-max"}
+    assert "--tracker srp-max:16x32 " in reproduce_command(data)

@@ -57,7 +57,7 @@ def main(args: argparse.Namespace) -> int:
     tracker = make_checked_tracker(args.tracker, options)  # before any file or folder is made
     # One model, one name: aliases (cross3d = cross3d:16x32, default-valued options) resolve to
     # the canonical id and options before the file is named (RunSpec.build).
-    spec, tracker = RunSpec.build(tracker, args.task, options, args.delays)
+    spec, tracker = RunSpec.build(tracker, args.task, options, args.delays, env_options=corpus_kwargs(args))
     spec = dataclasses.replace(spec, given_id=args.tracker if args.tracker != spec.tracker else None)
     if spec.trained_delays is not None:
         print(f"note: {spec.tracker} was trained on {spec.trained_delays} SRP delays; running with --delays "

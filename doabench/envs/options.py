@@ -5,11 +5,17 @@ built-in kinds' live here so that the command line builds its corpus flags from 
 (:func:`doabench.cli.common.add_corpus_options`) without importing the sources (torch, h5py). A
 field's metadata names its flag (``flag``), ``help``, ``choices`` and the flag's default
 (``cli_default``); a field without a flag is a Python-only option.
+
+Each kind's options also say which of them are part of a run's identity
+(:meth:`SimulatedOptions.identity`): the options that change the episodes or their scoring (a
+simulator, scene overrides, a LOCATA split or VAD), where they differ from the task's own, never
+where a corpus lies. ``from_source`` reads them back from what a results file recorded of its
+episode source (``task.source``), for files written before the identity was recorded.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Mapping
 
 
 @dataclass(frozen=True)
@@ -26,6 +32,27 @@ class SimulatedOptions:
     # scene-distribution fields replaced in every cell (e.g. {"duration_s": 3} for quick checks);
     # results record it, and it changes the episodes
     scene_overrides: dict[str, Any] | None = None
+
+    def identity(self, params: Mapping[str, Any]) -> dict[str, Any]:
+        """The options that change the episodes, where they differ from the task's (``params``: its
+        spec's): a simulator other than the task's own (a task that names one, like
+        ``sim-walk-pra``, is rendered by it, and ``builtin`` stands for it there), and any scene
+        overrides. The speech corpus and its subset are the task's (its spec fixes them); the
+        LibriSpeech root and the device are not part of it."""
+        task_backend = str((params.get("simulator") or {}).get("backend") or "builtin").lower()
+        backend = str(self.backend or "builtin").lower()
+        out: dict[str, Any] = {}
+        if backend not in ("builtin", task_backend):
+            out["backend"] = backend
+        if self.scene_overrides:
+            out["scene_overrides"] = {str(k): self.scene_overrides[k] for k in sorted(self.scene_overrides)}
+        return out
+
+    @classmethod
+    def from_source(cls, source: Mapping[str, Any]) -> "SimulatedOptions":
+        """The identity-bearing options a results file's ``task.source`` records."""
+        return cls(backend=str(source.get("simulator") or "builtin"),
+                   scene_overrides=dict(source.get("scene_overrides") or {}) or None)
 
     @staticmethod
     def reproduce_flags(source: dict[str, Any]) -> list[str]:
@@ -54,6 +81,25 @@ class LocataOptions:
                 "or corpus (the corpus VAD files); recorded in the results"})
     source: str | None = None  # a source name, for recordings with several
 
+    def identity(self, params: Mapping[str, Any]) -> dict[str, Any]:
+        """The options that change the episodes or their scoring, where they differ from the
+        task's (``params``: its spec's): the split, the VAD the non-silent frames come from, and
+        a chosen source. The corpus root is not part of it."""
+        locata = params.get("locata") or {}
+        out: dict[str, Any] = {}
+        if self.split is not None and self.split != locata.get("split", "dev"):
+            out["split"] = self.split
+        if self.vad is not None and self.vad != locata.get("vad", "webrtc"):
+            out["vad"] = self.vad
+        if self.source is not None:
+            out["source"] = self.source
+        return out
+
+    @classmethod
+    def from_source(cls, source: Mapping[str, Any]) -> "LocataOptions":
+        """The identity-bearing options a results file's ``task.source`` records."""
+        return cls(split=source.get("split"), vad=source.get("vad"), source=source.get("source"))
+
     @staticmethod
     def reproduce_flags(source: dict[str, Any]) -> list[str]:
         """The flags that re-create a run, from its results' ``task.source``: the corpus root as a
@@ -69,6 +115,13 @@ class LocataOptions:
 @dataclass(frozen=True)
 class DatasetOptions:
     """A ``dataset`` task takes no run-time option: the file holds everything."""
+
+    def identity(self, params: Mapping[str, Any]) -> dict[str, Any]:
+        return {}
+
+    @classmethod
+    def from_source(cls, source: Mapping[str, Any]) -> "DatasetOptions":
+        return cls()
 
     @staticmethod
     def reproduce_flags(source: dict[str, Any]) -> list[str]:

@@ -22,7 +22,7 @@ import dataclasses
 import difflib
 import inspect
 from importlib import metadata
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol
 
 import numpy as np
 
@@ -89,6 +89,42 @@ def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
         taken = kind_options(factory)
         given = {k: v for k, v in given.items() if k in taken}
     return factory(spec, **given)
+
+
+def task_identity(spec: TaskSpec, options: Mapping[str, Any]) -> dict[str, Any]:
+    """The run-time ``options`` of a run on ``spec`` that are part of the run's identity: those
+    that change its episodes or their scoring, where they differ from the task's own (its kind's
+    ``Options.identity``; ``{}`` for the defaults, so a default run keeps its name). A kind whose
+    ``Options`` declares no ``identity`` counts every option given that differs from its field's
+    default; a kind that declares no ``Options`` counts every option given."""
+    factory = task_kind(spec.kind, spec.id)
+    given = {k: v for k, v in options.items() if v is not None}
+    declared = getattr(factory, "Options", None)
+    if declared is None or not dataclasses.is_dataclass(declared):
+        taken = kind_options(factory) if not _takes_any_option(factory) else set(given)
+        return {k: given[k] for k in sorted(given) if k in taken}
+    names = {f.name for f in dataclasses.fields(declared)}
+    opts = declared(**{k: v for k, v in given.items() if k in names})
+    identity = getattr(opts, "identity", None)
+    if callable(identity):
+        return dict(identity(spec.params))
+    defaults = declared()
+    return {k: getattr(opts, k) for k in sorted(names) if getattr(opts, k) != getattr(defaults, k)}
+
+
+def recorded_identity(spec: TaskSpec | None, kind: str, source: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`task_identity` of a run recorded before results held it, from its ``task.source``
+    (the kind's ``Options.from_source``); ``{}`` where the kind or its reading is not available
+    here (such a file is taken as a run of the task's defaults)."""
+    try:
+        declared = getattr(task_kind(kind), "Options", None)
+    except ConfigError:
+        return {}
+    from_source = getattr(declared, "from_source", None)
+    if not callable(from_source):
+        return {}
+    identity = getattr(from_source(source), "identity", None)
+    return dict(identity(spec.params if spec is not None else {})) if callable(identity) else {}
 
 
 def _takes_any_option(factory: Callable[..., EpisodeSource]) -> bool:

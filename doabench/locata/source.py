@@ -83,6 +83,7 @@ class LocataEpisodes:
             "array": self.array,
             "recordings": [r.number for r in self.recordings],
             "vad": self.vad,
+            "source": self.source,
             "vad_rule": self.vad,
             "vad_sources": {str(k): v for k, v in self.vad_sources().items()},
             "fs": self.fs,

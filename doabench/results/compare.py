@@ -34,7 +34,8 @@ import numpy as np
 
 from doabench.errors import InputError
 from doabench.results.files import load_results
-from doabench.results.labels import labelled
+from doabench.results.labels import configuration_label
+from doabench.results.writer import results_task_options
 from doabench.metrics import LAG_MAX_S, LAG_STEP_S, STATIC_SPEED_DEG_S, THRESHOLDS_DEG, lag_grid, score_frames
 
 N_RESAMPLES = 2000
@@ -73,10 +74,11 @@ def load_run(path: str | Path) -> Run:
 
 
 def run_label(results: dict[str, Any]) -> str:
-    """The tracker id, with its options when it had any (``cross3d:16x32 (weights=v3.safetensors)``)."""
+    """The tracker id, with its options when it had any (``cross3d:16x32 (weights=v3.safetensors)``)
+    and its task options (``[backend=pyroomacoustics]``)."""
     tracker = results.get("tracker") or {}
     name = str(tracker.get("id") or tracker.get("name") or "?")
-    return labelled(name, tracker.get("options"))
+    return configuration_label(name, tracker.get("options"), results_task_options(results))
 
 
 def _distinct_labels(runs: Sequence[Run]) -> None:
@@ -132,12 +134,11 @@ def pair(a: Run, b: Run, by_seed: bool = False) -> Pairing:
     if ta.get("version") != tb.get("version"):
         raise InputError(f"{a.path} ran {ta.get('id')} v{ta.get('version')} and {b.path} v{tb.get('version')}: "
                          "different task versions have different episodes")
-    over_a = (ta.get("source") or {}).get("scene_overrides") or {}
-    over_b = (tb.get("source") or {}).get("scene_overrides") or {}
-    if over_a != over_b:
-        raise InputError(f"{a.path} and {b.path} ran {ta.get('id')} with different scene overrides "
+    over_a, over_b = results_task_options(a.results), results_task_options(b.results)
+    if over_a != over_b:  # another simulator, scene overrides, LOCATA split or VAD
+        raise InputError(f"{a.path} and {b.path} ran {ta.get('id')} with different task options "
                          f"({json.dumps(over_a, sort_keys=True)} and {json.dumps(over_b, sort_keys=True)}): "
-                         "not the same episodes")
+                         "not the same episodes or scoring (--by-seed pairs two renderings of the same scenes)")
     by_b = {int(r["episode"]): r for r in b.rows}
     shared_a, shared_b = [], []
     for row in sorted(a.rows, key=lambda r: int(r["episode"])):

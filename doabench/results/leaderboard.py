@@ -25,6 +25,8 @@ from doabench.errors import ConfigError
 from doabench.results.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, canonical_id, collect, coverage, display_path,
                                       load_references, load_runs, recording_mean)
+from doabench.results.writer import results_task_options
+from doabench.trackers.registry import available_trackers
 
 PUBLISHED = "published"
 REPRODUCED = "doabench run"
@@ -84,7 +86,7 @@ def reproduce_command(results: dict[str, Any]) -> str:
     """The ``doabench run`` command line that re-creates a results file (corpus paths as placeholders)."""
     task = results["task"]
     tracker = results["tracker"]
-    parts = ["doabench run", f"--tracker {canonical_id(results)}", f"--task {task['id']}"]
+    parts = ["doabench run", f"--tracker {typeable_id(results)}", f"--task {task['id']}"]
     for key, value in sorted((tracker.get("options") or {}).items()):
         parts.append(f"--tracker-opt {key}={value}")
     selection = task.get("selection") or {}
@@ -100,7 +102,20 @@ def reproduce_command(results: dict[str, Any]) -> str:
     device = (results.get("environment") or {}).get("device")
     if device not in (None, "cpu"):
         parts.append(f"--device {device}")
+    scene = results_task_options(results).get("scene_overrides")
+    if scene:  # no flag: the Python API's option
+        parts.append(f"(Python: doabench.run(..., scene_overrides={json.dumps(scene, sort_keys=True)}))")
     return " ".join(parts)
+
+
+def typeable_id(results: dict[str, Any]) -> str:
+    """The tracker id to type again: the canonical id where a tracker of that name is registered
+    here, else the text the run was started with (``given_id``: a plug-in's ``package.module:Class``)."""
+    canonical = canonical_id(results)
+    given = (results.get("tracker") or {}).get("given_id")
+    if given and canonical.split(":", 1)[0] not in available_trackers():
+        return str(given)
+    return canonical
 
 
 def provenance_line(label: str, run: RunFile) -> str:

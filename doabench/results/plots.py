@@ -20,7 +20,8 @@ from typing import Any, Sequence, TypedDict
 import numpy as np
 
 from doabench.errors import InputError
-from doabench.results.labels import labelled
+from doabench.results.labels import configuration_label
+from doabench.results.writer import results_task_options
 
 METRICS = ("rmsae_all", "rmsae_nonsilent")
 METRIC_LABELS = {"rmsae_all": "RMSAE, all frames [deg]", "rmsae_nonsilent": "RMSAE, non-silent frames [deg]"}
@@ -63,7 +64,8 @@ def tracker_label(results: dict[str, Any]) -> str:
     tracker = results.get("tracker") or {}
     name = str(tracker.get("id") or tracker.get("name") or "?")
     delays = (results.get("features") or {}).get("delays")
-    return labelled(name, tracker.get("options"), [f"delays={delays}"] if delays not in (None, "nearest") else [])
+    return configuration_label(name, tracker.get("options"), results_task_options(results),
+                               [f"delays={delays}"] if delays not in (None, "nearest") else [])
 
 
 def _configuration_key(results: dict[str, Any]) -> str:

@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from doabench.errors import InputError
-from doabench.results.labels import labelled
+from doabench.results.labels import canonical_id, configuration_label
+from doabench.results.writer import results_task_options
 
 SCHEMA_PREFIX = "doabench.results/"
 SUPPORTED_SCHEMAS = ("doabench.results/1",)
@@ -47,10 +48,11 @@ class RunFile:
 
     @property
     def tracker_id(self) -> str:
-        """The canonical tracker id (:func:`canonical_id`), with its options when the run had any (two
-        configurations of one tracker are two rows that can be told apart): ``srp-kalman:32x64 (alpha=0.2)``."""
+        """The row's label: the canonical tracker id (:func:`canonical_id`), with its options when the
+        run had any and its task options when they differ from the task's (two configurations are two
+        rows that can be told apart): ``srp-kalman:32x64 (alpha=0.2)``, ``srp-max:16x32 [backend=gpurir]``."""
         tracker = self.results["tracker"]
-        return labelled(canonical_id(self.results), tracker.get("options"))
+        return configuration_label(canonical_id(self.results), tracker.get("options"), results_task_options(self.results))
 
 
 @dataclass(frozen=True)
@@ -77,20 +79,6 @@ class TaskBoard:
     superseded: list[tuple[RunFile, RunFile]] = field(default_factory=list)
 
 
-def canonical_id(results: dict[str, Any]) -> str:
-    """The tracker id a results file is shown and ranked under. Files written since ids became
-    canonical (``doabench.trackers.registry.canonical_tracker``) carry it as ``tracker.id``; an
-    older file's bare id of a tracker whose spec is its map resolution gets the resolution it ran
-    at (``cross3d`` -> ``cross3d:16x32``)."""
-    tracker = results.get("tracker") or {}
-    text = str(tracker.get("id") or tracker.get("name"))
-    resolution = tracker.get("resolution")
-    in_id = tracker.get("resolution_in_id", resolution is not None)
-    if ":" not in text and in_id and resolution:
-        return f"{text}:{resolution}"
-    return text
-
-
 def is_complete(results: dict[str, Any]) -> bool:
     """Every episode of the task was scored."""
     task = results.get("task") or {}
@@ -107,7 +95,8 @@ def coverage(results: dict[str, Any]) -> str:
 
 
 def configuration_key(run: RunFile) -> tuple:
-    """What makes two files one row: task version, canonical tracker id with options, weights, delays."""
+    """What makes two files one row: task version, canonical tracker id with options and task
+    options (its label), weights, delays."""
     r = run.results
     return (r["task"].get("version"), run.tracker_id, r["tracker"].get("weights_hash"),
             (r.get("features") or {}).get("delays") or "nearest")

@@ -10,8 +10,11 @@ from typing import Any, Mapping
 
 import pandas as pd
 
-from doabench.errors import InputError
+from doabench.envs.registry import get_task_spec
+from doabench.envs.sources import recorded_identity
+from doabench.errors import DoabenchError, InputError
 from doabench.results.files import atomic_path, write_json
+from doabench.results.labels import canonical_id
 
 
 def _name_options(options: Mapping[str, Any] | None, weights_hash: str | None) -> dict[str, Any]:
@@ -24,31 +27,54 @@ def _name_options(options: Mapping[str, Any] | None, weights_hash: str | None) -
 
 
 def config_suffix(options: Mapping[str, Any] | None = None, delays: str = "nearest",
-                  weights_hash: str | None = None) -> str:
-    """``""`` for a tracker's default configuration (no options, nearest delays), else
-    ``"__" + 8 hex digits`` of the configuration, so different configurations never share a file."""
+                  weights_hash: str | None = None, task_options: Mapping[str, Any] | None = None) -> str:
+    """``""`` for a tracker's default configuration on the task's defaults (no tracker options,
+    nearest delays, no task options), else ``"__" + 8 hex digits`` of the configuration, so
+    different configurations never share a file. The task options enter the hashed text only when
+    there are any, so every run on a task's defaults keeps the name it always had."""
     opts = _name_options(options, weights_hash)
-    if not opts and delays in (None, "nearest"):
+    if not opts and delays in (None, "nearest") and not task_options:
         return ""
-    text = json.dumps({"options": opts, "delays": delays or "nearest"}, sort_keys=True, default=str)
+    named: dict[str, Any] = {"options": opts, "delays": delays or "nearest"}
+    if task_options:
+        named["task_options"] = dict(task_options)
+    text = json.dumps(named, sort_keys=True, default=str)
     return "__" + hashlib.sha256(text.encode()).hexdigest()[:8]
 
 
 def results_stem(task_id: str, tracker_id: str, options: Mapping[str, Any] | None = None, delays: str = "nearest",
-                 weights_hash: str | None = None) -> str:
+                 weights_hash: str | None = None, task_options: Mapping[str, Any] | None = None) -> str:
     """File stem for a run, safe on every filesystem: ``sim-demo__srp-max_32x64`` for the default
-    configuration, ``sim-demo__srp-kalman__1a2b3c4d`` with tracker options or exact delays."""
+    configuration, ``sim-demo__srp-kalman__1a2b3c4d`` with tracker options, exact delays or task
+    options (``--backend``, ``--vad``, ...: :func:`doabench.envs.sources.task_identity`)."""
     safe = lambda s: re.sub(r"[^A-Za-z0-9.+-]+", "_", s).strip("_")  # noqa: E731
-    return f"{safe(task_id)}__{safe(tracker_id)}" + config_suffix(options, delays, weights_hash)
+    return f"{safe(task_id)}__{safe(tracker_id)}" + config_suffix(options, delays, weights_hash, task_options)
 
 
 def configuration(task_id: str, task_version: Any, tracker_id: str, options: Mapping[str, Any] | None,
-                  weights_hash: str | None, delays: str | None) -> dict[str, Any]:
+                  weights_hash: str | None, delays: str | None,
+                  task_options: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """What makes two runs the same configuration (the number of episodes does not: a longer run
-    of the same configuration replaces a shorter one)."""
+    of the same configuration replaces a shorter one): the task and its version, the run-time
+    options that change its episodes or scoring (``task_options``), the tracker, its options,
+    weights and SRP delays."""
     return {"task": str(task_id), "task_version": None if task_version is None else int(task_version),
+            "task_options": dict(task_options or {}),
             "tracker": str(tracker_id), "options": _name_options(options, weights_hash),
             "weights": weights_hash or None, "delays": delays or "nearest"}
+
+
+def results_task_options(results: Mapping[str, Any]) -> dict[str, Any]:
+    """The task options that are part of a run's identity (``task.options`` of its results; for a
+    file written before results held them, read back from ``task.source``)."""
+    task = results.get("task") or {}
+    if isinstance(task.get("options"), Mapping):
+        return dict(task["options"])
+    try:
+        spec = get_task_spec(str(task.get("id")))
+    except DoabenchError:  # a plug-in task not installed here: its source alone says it
+        spec = None
+    return recorded_identity(spec, str(task.get("kind")), task.get("source") or {})
 
 
 def results_configuration(results: Mapping[str, Any]) -> dict[str, Any]:
@@ -57,13 +83,14 @@ def results_configuration(results: Mapping[str, Any]) -> dict[str, Any]:
     # str(): configuration() makes text of them anyway, a missing id included
     return configuration(str(task.get("id")), task.get("version"), str(tracker.get("id") or tracker.get("name")),
                          tracker.get("options"), tracker.get("weights_hash"),
-                         (results.get("features") or {}).get("delays"))
+                         (results.get("features") or {}).get("delays"), results_task_options(results))
 
 
 def results_path(results: Mapping[str, Any], out_dir: str | Path) -> Path:
     """Where :func:`write_results` puts the JSON of ``results``."""
     c = results_configuration(results)
-    stem = results_stem(c["task"], c["tracker"], (results["tracker"].get("options") or {}), c["delays"], c["weights"])
+    stem = results_stem(c["task"], c["tracker"], (results["tracker"].get("options") or {}), c["delays"], c["weights"],
+                        c["task_options"])
     return Path(out_dir) / f"{stem}.json"
 
 
@@ -117,8 +144,6 @@ def alias_files(results: Mapping[str, Any], out_dir: str | Path) -> list[Path]:
     configuration under an alias of its tracker id (``sim-demo__srp-max.json`` written before ids
     were canonical, now ``sim-demo__srp-max_16x32.json``): one model, one file. Only files whose
     name starts with the task and the tracker's registered name are read."""
-    from doabench.results.ranking import canonical_id
-
     target = results_path(results, out_dir)
     tracker = results.get("tracker") or {}
     safe = lambda s: re.sub(r"[^A-Za-z0-9.+-]+", "_", str(s)).strip("_")  # noqa: E731

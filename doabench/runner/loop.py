@@ -20,6 +20,7 @@ import numpy as np
 
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
+from doabench.envs.sources import task_identity
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, DoabenchError, TrackerError
 from doabench.geometry import normalize
@@ -169,6 +170,10 @@ def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
     locked by the caller. ``wall_time_s`` adds up every invocation that contributed episodes."""
     check_trained(tracker, keyword=True)
     task = get_task_spec(spec.task)
+    identity = task_identity(task, env_options)
+    if identity != dict(spec.task_options):  # the file's name and content must name the same episodes
+        raise ConfigError(f"this run of {task.id} was named for the task options {dict(spec.task_options)} and runs "
+                          f"with {identity}: build its RunSpec with the same options (RunSpec.build(..., env_options=...))")
     provenance = environment(device)  # taken before the work: the code that runs is the code recorded
     wall_start = time.perf_counter()
     env = make_env_for(tracker, task.id, device=device, delays=spec.delays, **env_options)
@@ -190,6 +195,7 @@ def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
         results["features"]["trained_delays"] = spec.trained_delays
     if spec.given_id is not None:
         results["tracker"]["given_id"] = spec.given_id
+    results["task"]["options"] = identity
     return results
 
 

@@ -1,7 +1,9 @@
 """One run's identity as a value: :class:`RunSpec`.
 
 A run is a tracker configuration (its canonical id, options and weights) on a task (id and
-version) with the SRP delay mode its observations use. Everything that names or recognises a run
+version, and the run-time options that change its episodes or scoring: a simulator, scene
+overrides, a LOCATA split or VAD; :func:`doabench.envs.sources.task_identity`) with the SRP delay
+mode its observations use. Everything that names or recognises a run
 derives from this one value: the results file stem, the configuration two files are compared by,
 the resume journal and its lock, and the hash that heads the journal. ``doabench run``, ``doabench
 sweep`` and the Python API (:func:`doabench.run`) all build one and call :meth:`RunSpec.execute`,
@@ -14,6 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from doabench.envs.registry import get_task_spec
+from doabench.envs.sources import task_identity
 from doabench.results.writer import configuration, results_stem
 from doabench.runner.journal import run_lock
 from doabench.runner.loop import Progress, execute_spec
@@ -26,7 +29,8 @@ class RunSpec:
     """``tracker`` is the canonical id (aliases resolved), ``options`` the canonical options,
     ``delays`` the mode the run uses; ``trained_delays`` is set only when that mode is not the one
     the weights were trained on (asked for on purpose), ``given_id`` only when the user typed an
-    alias of ``tracker``."""
+    alias of ``tracker``. ``task_options``: the run-time options of the task that are part of the
+    identity (``{}`` on the task's defaults)."""
 
     task: str
     task_version: int
@@ -37,12 +41,15 @@ class RunSpec:
     requested_delays: str | None = None
     trained_delays: str | None = None
     given_id: str | None = None
+    task_options: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
     def build(cls, tracker: str | Tracker, task: str, options: Mapping[str, Any] | None = None,
-              delays: str | None = None, instance: Tracker | None = None) -> tuple["RunSpec", Tracker]:
+              delays: str | None = None, instance: Tracker | None = None,
+              env_options: Mapping[str, Any] | None = None) -> tuple["RunSpec", Tracker]:
         """The spec of running ``tracker`` (its ``--tracker`` text, or an instance) with ``options``
-        on ``task``, and the tracker instance (``instance``, or built here from the text).
+        on ``task`` with the run-time ``env_options`` (corpus roots, ``backend``, ``vad``, ...), and
+        the tracker instance (``instance``, or built here from the text).
         ``delays`` None: the mode the tracker was trained on."""
         options = dict(options or {})
         if isinstance(tracker, str):
@@ -57,16 +64,18 @@ class RunSpec:
         spec = get_task_spec(task)
         return cls(task=spec.id, task_version=spec.version, tracker=tracker_id, options=options,
                    weights_hash=instance.weights_hash(), delays=used, requested_delays=delays,
-                   trained_delays=trained, given_id=text if text != tracker_id else None), instance
+                   trained_delays=trained, given_id=text if text != tracker_id else None,
+                   task_options=task_identity(spec, dict(env_options or {}))), instance
 
     @property
     def stem(self) -> str:
         """The results file stem: ``sim-demo__srp-max_16x32``, ``..__1a2b3c4d`` with options."""
-        return results_stem(self.task, self.tracker, self.options, self.delays, self.weights_hash)
+        return results_stem(self.task, self.tracker, self.options, self.delays, self.weights_hash, self.task_options)
 
     def configuration(self) -> dict[str, Any]:
         """What makes two results files the same configuration (results.writer.configuration)."""
-        return configuration(self.task, self.task_version, self.tracker, self.options, self.weights_hash, self.delays)
+        return configuration(self.task, self.task_version, self.tracker, self.options, self.weights_hash, self.delays,
+                             self.task_options)
 
     def results_path(self, out: str | Path) -> Path:
         return Path(out) / f"{self.stem}.json"
@@ -114,7 +123,7 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     episodes for resuming (any path; :meth:`RunSpec.execute` with an ``out`` folder names it),
     removed by the caller once the results are written; locked for the run unless ``lock=False``
     (the caller holds :func:`run_lock` already)."""
-    spec, instance = RunSpec.build(tracker, task, tracker_options, delays)
+    spec, instance = RunSpec.build(tracker, task, tracker_options, delays, env_options=env_options)
     if partial_path is None or not lock:
         return execute_spec(spec, instance, partial_path, episodes, cells, device, progress, keep_frames, env_options)
     with run_lock(partial_path):
