@@ -30,8 +30,9 @@ import numpy as np
 import doabench
 from doabench.errors import ConfigError, TrackerError
 
+from . import catalog
 from .weights import (check_array, check_metadata, load_into, load_weights, make_metadata, parse_resolution,
-                      read_metadata, resolution_text, save_weights, sha256_file, shipped_resolutions, shipped_weights)
+                      read_metadata, resolution_text, save_weights, sha256_file)
 
 # torch and the model modules are imported where a tracker is built or run, not at import time:
 # doabench loads this module to list the registered trackers (`doabench list trackers`), which
@@ -150,18 +151,22 @@ class NeuralTracker(doabench.Tracker):
         return None
 
     def _find_weights(self, weights: str | None, res_text: str | None) -> tuple[Path | None, dict | None]:
+        """The weights file and its metadata: ``random``: none; a name of the catalog (``moving``,
+        ``default``; :mod:`.catalog`) or nothing: that shipped file of this tracker's resolution; else
+        a file path, whose own metadata then settles the resolution."""
         if weights is not None and str(weights).lower() in _RANDOM:
             return None, None
-        if weights is not None:
-            path = Path(str(weights)).expanduser()
-            meta = read_metadata(path)
-            check_metadata(meta, path, model_name=self.model_name)
-            return path, meta
         res = None
         if self.uses_resolution:
             res = parse_resolution(res_text) if res_text else self._default_resolution()
-        path = shipped_weights(self.model_name, res)
-        return (path, read_metadata(path)) if path is not None else (None, None)
+        path = catalog.resolve(self.model_name, res, weights)
+        if path is None and weights is not None:
+            path = Path(str(weights)).expanduser()
+        if path is None:
+            return None, None
+        meta = read_metadata(path)
+        check_metadata(meta, path, model_name=self.model_name)
+        return path, meta
 
     def _pick_resolution(self, res_text: str | None, meta: Mapping[str, Any]) -> tuple[int, int] | None:
         if not self.uses_resolution:
@@ -224,6 +229,37 @@ class NeuralTracker(doabench.Tracker):
 
     def weights_hash(self) -> str | None:
         return self._hash
+
+    @property
+    def weights_name(self) -> str | None:
+        """The catalog name of the weights in use (``paper``, ``moving``): the shipped file of this
+        tracker with the same SHA-256, wherever it was read from; None for other files and random weights."""
+        return catalog.name_of(self.model_name, self._resolution, self._hash)
+
+    @property
+    def plain_weights_name(self) -> str | None:
+        """The name of this tracker's plain weights (``<model>[-<res>].safetensors``): a run with
+        them carries no weights option (:func:`doabench.trackers.registry.canonical_tracker`)."""
+        return catalog.plain_name(self.model_name, self._resolution)
+
+    @classmethod
+    def shipped_weights(cls) -> list[dict[str, Any]]:
+        """The catalog's entries of this model (every resolution), default first per tracker id."""
+        out = []
+        for e in catalog.all_named():
+            if e.tracker.partition(":")[0] != cls.model_name:
+                continue
+            res = parse_resolution(e.tracker.partition(":")[2]) if ":" in e.tracker else None
+            out.append({"tracker": e.tracker, "name": e.name, "default": catalog.default_name(cls.model_name, res) == e.name,
+                        "file": e.file, "sha256": e.sha256, "task": e.task, "headline": dict(e.headline)})
+        return sorted(out, key=lambda d: (d["tracker"], not d["default"], d["name"]))
+
+    @classmethod
+    def named_weights(cls, spec: str | None) -> dict[str, str]:
+        """``{sha256: name}`` of the shipped weights of this tracker at ``spec`` (its resolution),
+        for reading a name back from a results file's hash."""
+        res = parse_resolution(spec) if cls.uses_resolution and spec else None
+        return {e.sha256: name for name, e in catalog.named_weights(cls.model_name, res).items() if e.sha256}
 
     def parameter_count(self) -> int:
         from .layers import count_parameters
@@ -389,8 +425,8 @@ class Cross3DTracker(NeuralTracker):
     uses_resolution = True
 
     def _default_resolution(self) -> tuple[int, int]:
-        shipped = shipped_resolutions(self.model_name)
-        return shipped[-1] if shipped else (8, 16)
+        """The catalog's default resolution for ``cross3d`` (its default rule), else 8x16."""
+        return catalog.default_resolution(self.model_name) or (8, 16)
 
     def build_model(self) -> nn.Module:
         from .cross3d import Cross3D

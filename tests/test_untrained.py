@@ -75,7 +75,9 @@ def test_explicit_random_runs_and_is_marked_untrained(tmp_path: Path) -> None:
     assert json.loads(json_path.read_text())["tracker"]["untrained"] is True
     files = build_leaderboards(tmp_path / "results")
     page = files["sim-demo.md"]
-    assert "`cross3d:4x8 (weights=random)` **(untrained)**" in page and "UNTRAINED (random weights)" in page
+    # the run's scene overrides are part of its identity, so the row names them too
+    assert "`cross3d:4x8 (weights=random) [scene_overrides=" in page and "**(untrained)**" in page
+    assert "UNTRAINED (random weights)" in page
     assert ",untrained," in files["sim-demo.csv"]
     # A trained model's run is not marked.
     trained = doabench.run(tracker="cross3d:4x8", task="sim-demo", episodes=1, progress=False,

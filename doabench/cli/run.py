@@ -46,7 +46,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.envs.registry import get_task_spec
     from doabench.envs.sources import kind_options, task_kind
     from doabench.errors import ConfigError
-    from doabench.results.writer import alias_files, check_overwrite, format_summary, write_results
+    from doabench.results.writer import alias_files, check_overwrite, format_summary, weights_line, write_results
     from doabench.runner import RunSpec
     from doabench.runner.selection import parse_cells
     from doabench.trackers.registry import parse_options
@@ -71,6 +71,8 @@ def main(args: argparse.Namespace) -> int:
     is_partial = bool(args.cells) or (args.episodes is not None and args.episodes < task.episodes)
     check_overwrite(spec.results_path(out), spec.configuration(), args.overwrite, partial=is_partial)
     partial = spec.journal_path(out)
+    if spec.weights_hash or tracker.describe().get("trained") is False:  # which weights, before the work
+        print(f"doabench run: {spec.tracker} on {spec.task}; {weights_line(tracker.describe())}", file=sys.stderr)
     set_interrupt_note(args, lambda: _kept(args, partial))
     try:
         # a second run with the same --out, task and tracker is refused (the journal's lock)

@@ -1,5 +1,6 @@
 """How a run's tracker reads in leaderboards, comparisons and figure legends: its id and, when it
-had any, its options (``srp-kalman:32x64 (alpha=0.5)``), and the task options the run used where
+had any, its options (``srp-kalman:32x64 (alpha=0.5)``; shipped weights by their short name,
+``cross3d:16x32 (weights=moving)``, whether or not the run named them), and the task options the run used where
 they differ from the task's (``srp-max:16x32 [backend=pyroomacoustics]``), so two configurations
 never read the same. One rule for every view, so a row of a leaderboard and a line of a figure match."""
 from __future__ import annotations
@@ -7,6 +8,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 from typing import Any, Iterable, Mapping
+
+from doabench.results.identity import canonical_id, results_task_options, results_weights_name
 
 
 def option_text(key: str, value: Any) -> str:
@@ -31,15 +34,13 @@ def configuration_label(name: str, options: Mapping[str, Any] | None, task_optio
     return text
 
 
-def canonical_id(results: dict[str, Any]) -> str:
-    """The tracker id a results file is shown and ranked under. Files written since ids became
-    canonical (``doabench.trackers.registry.canonical_tracker``) carry it as ``tracker.id``; an
-    older file's bare id of a tracker whose spec is its map resolution gets the resolution it ran
-    at (``cross3d`` -> ``cross3d:16x32``)."""
+def run_label(results: Mapping[str, Any], extra: Iterable[str] = ()) -> str:
+    """The label of a results file's configuration: canonical id, options with the shipped
+    weights' name (``cross3d:16x32 (weights=paper)`` for a run of the plain weights too), then
+    ``extra`` and its task options."""
     tracker = results.get("tracker") or {}
-    text = str(tracker.get("id") or tracker.get("name"))
-    resolution = tracker.get("resolution")
-    in_id = tracker.get("resolution_in_id", resolution is not None)
-    if ":" not in text and in_id and resolution:
-        return f"{text}:{resolution}"
-    return text
+    options = dict(tracker.get("options") or {})
+    name = results_weights_name(results)
+    if name is not None:
+        options["weights"] = name
+    return configuration_label(canonical_id(dict(results)), options, results_task_options(results), extra)

@@ -25,7 +25,7 @@ from doabench.errors import ConfigError
 from doabench.results.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, canonical_id, collect, coverage, display_path,
                                       load_references, load_runs, recording_mean)
-from doabench.results.writer import results_task_options
+from doabench.results.identity import results_task_options, results_weights_name
 from doabench.trackers.registry import available_trackers
 
 PUBLISHED = "published"
@@ -87,7 +87,11 @@ def reproduce_command(results: dict[str, Any]) -> str:
     task = results["task"]
     tracker = results["tracker"]
     parts = ["doabench run", f"--tracker {typeable_id(results)}", f"--task {task['id']}"]
-    for key, value in sorted((tracker.get("options") or {}).items()):
+    options = dict(tracker.get("options") or {})
+    named = results_weights_name(results)
+    if named is not None:  # by name, also for the plain weights: the default may have changed since
+        options["weights"] = named
+    for key, value in sorted(options.items()):
         parts.append(f"--tracker-opt {key}={value}")
     selection = task.get("selection") or {}
     if selection.get("cells"):
@@ -613,9 +617,10 @@ def default_references(board_dir: str | Path) -> list[str]:
     return [str(path)] if path.is_file() else []
 
 
-def build_leaderboards(results_dir: str | Path, reference_files: Sequence[str | Path] = (),
+def build_leaderboards(results_dir: str | Path | Sequence[str | Path], reference_files: Sequence[str | Path] = (),
                        command: str = "doabench leaderboard") -> dict[str, str]:
-    """All generated files as ``{file name: text}`` (nothing written)."""
+    """All generated files as ``{file name: text}`` (nothing written), from the results files of
+    one folder or several (:func:`doabench.results.ranking.load_runs`)."""
     runs = load_runs(results_dir)
     references = [row for path in reference_files for row in load_references(path)]
     boards = collect(runs, references)

@@ -20,8 +20,7 @@ from typing import Any, Sequence, TypedDict
 import numpy as np
 
 from doabench.errors import InputError
-from doabench.results.labels import configuration_label
-from doabench.results.writer import results_task_options
+from doabench.results.labels import run_label
 
 METRICS = ("rmsae_all", "rmsae_nonsilent")
 METRIC_LABELS = {"rmsae_all": "RMSAE, all frames [deg]", "rmsae_nonsilent": "RMSAE, non-silent frames [deg]"}
@@ -61,11 +60,8 @@ def save_figure(fig, out: str | Path, dpi: int = 110) -> list[Path]:
 def tracker_label(results: dict[str, Any]) -> str:
     """The tracker as a reader tells runs apart: its id and, when set, its options and delay mode
     (``srp-kalman:32x64 (alpha=0.5)``), so two configurations of one tracker never read the same."""
-    tracker = results.get("tracker") or {}
-    name = str(tracker.get("id") or tracker.get("name") or "?")
     delays = (results.get("features") or {}).get("delays")
-    return configuration_label(name, tracker.get("options"), results_task_options(results),
-                               [f"delays={delays}"] if delays not in (None, "nearest") else [])
+    return run_label(results, [f"delays={delays}"] if delays not in (None, "nearest") else [])
 
 
 def _configuration_key(results: dict[str, Any]) -> str:
@@ -143,7 +139,7 @@ def line_styles(n: int, colours: Sequence[str] = COLOURS, markers: Sequence[str]
     return out
 
 
-def _legend_outside(ax, **kwargs: Any):
+def legend_outside(ax, **kwargs: Any):
     """A legend to the right of ``ax``, clear of its data. The figure widens by the legend's width,
     so that ``tight_layout`` does not squeeze the axes to make room for long labels."""
     legend = ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
@@ -236,7 +232,7 @@ def rmsae_vs_t60_figure(runs: Sequence[dict[str, Any]], snrs: Sequence[float] | 
         ax.grid(True, alpha=0.3)
     axes[0][0].set_ylabel(METRIC_LABELS[metric])
     axes[0][0].set_ylim(bottom=0)
-    _legend_outside(axes[0][-1], ncol=1 if len(ordered) <= 16 else 2)
+    legend_outside(axes[0][-1], ncol=1 if len(ordered) <= 16 else 2)
     task = grid_runs[0]["task"]["id"]
     fig.suptitle(title or f"{task}: {METRIC_LABELS[metric].split(' [')[0]} versus T60 (bands: 95% bootstrap CI)")
     fig.tight_layout()
@@ -298,7 +294,7 @@ def rmsae_vs_speed_figure(runs: Sequence[dict[str, Any]], title: str | None = No
     ax.set_ylabel(SPEED_LABEL)
     ax.set_ylim(bottom=0)
     ax.grid(True, alpha=0.3)
-    _legend_outside(ax, ncol=1 if len(runs) <= 16 else 2)
+    legend_outside(ax, ncol=1 if len(runs) <= 16 else 2)
     task_text = ", ".join(dict.fromkeys(tasks))
     fig.suptitle(title or f"{task_text}: RMSAE of voice-active frames by angular speed of the truth",
                  fontsize="medium")
@@ -425,7 +421,7 @@ def episode_figure(results: dict[str, Any], episode: int, maxima: np.ndarray | N
     handles, _ = axes[0].get_legend_handles_labels()
     if vad is not None and not np.all(vad):
         handles.append(Patch(color="0.85", label="silent frames"))
-    _legend_outside(axes[0], handles=handles)  # right of the elevation panel, never over either panel's lines
+    legend_outside(axes[0], handles=handles)  # right of the elevation panel, never over either panel's lines
     row = f["row"]
     scene = ", ".join(x for x in (
         f"T60 {row['t60']:.2g} s" if row.get("t60") is not None else "",

@@ -7,7 +7,13 @@ Only complete runs (every episode of the task) are ranked; partial runs (``--epi
 (``cross3d`` for ``cross3d:16x32``, results files written before ids were canonical) is shown
 under its canonical id, and of several files of one configuration (task version, tracker,
 options, weights, delays) only the most complete, then newest, is shown; the others are listed
-as superseded."""
+as superseded.
+
+Several results folders are read together; one configuration with files in two of them is
+refused (which folder's file would be the row is an accident of the order they were given in).
+A JSON file in a folder that is not a results file this doabench reads (another tool's file, an
+unknown schema, a section the results JSON Schema requires missing or of the wrong type) is
+skipped, and named on standard error with the reason."""
 from __future__ import annotations
 
 import csv
@@ -15,13 +21,15 @@ import hashlib
 import io
 import json
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 from doabench.errors import InputError
-from doabench.results.labels import canonical_id, configuration_label
-from doabench.results.writer import results_task_options
+from doabench.results.identity import canonical_id
+from doabench.results.labels import run_label
+from doabench.results.schema import results_problem
 
 SCHEMA_PREFIX = "doabench.results/"
 SUPPORTED_SCHEMAS = ("doabench.results/1",)
@@ -48,11 +56,11 @@ class RunFile:
 
     @property
     def tracker_id(self) -> str:
-        """The row's label: the canonical tracker id (:func:`canonical_id`), with its options when the
-        run had any and its task options when they differ from the task's (two configurations are two
-        rows that can be told apart): ``srp-kalman:32x64 (alpha=0.2)``, ``srp-max:16x32 [backend=gpurir]``."""
-        tracker = self.results["tracker"]
-        return configuration_label(canonical_id(self.results), tracker.get("options"), results_task_options(self.results))
+        """The row's label (:func:`doabench.results.labels.run_label`): the canonical tracker id
+        (:func:`canonical_id`), with its options (shipped weights by name) and its task options where
+        they differ from the task's, so two configurations are two rows that can be told apart:
+        ``srp-kalman:32x64 (alpha=0.2)``, ``srp-max:16x32 [backend=gpurir]``."""
+        return run_label(self.results)
 
 
 @dataclass(frozen=True)
@@ -121,31 +129,55 @@ def display_path(path: Path) -> str:
         return path.as_posix()
 
 
-def load_runs(folder: str | Path) -> list[RunFile]:
-    """Every ``*.json`` results file in ``folder`` (sorted by name). Other JSON files (no
-    ``schema`` key of the results family) are ignored; unreadable ones raise InputError."""
-    folder = Path(folder)
+def warn_skipped(message: str) -> None:
+    """Where :func:`load_runs` names a skipped file: standard error."""
+    print(f"doabench: warning: {message}", file=sys.stderr)
+
+
+def load_runs(folders: str | Path | Sequence[str | Path], warn: Callable[[str], None] = warn_skipped) -> list[RunFile]:
+    """Every ``*.json`` results file in ``folders`` (one or several; each sorted by name, a folder
+    given twice read once). Other JSON files are skipped and named through ``warn`` with the reason
+    (:func:`doabench.results.schema.results_problem`); a file that is no JSON at all, a missing
+    folder and one configuration in two folders (:func:`refuse_shared_configurations`) raise InputError."""
+    unique: dict[Path, Path] = {}
+    for folder in [folders] if isinstance(folders, (str, Path)) else folders:
+        unique.setdefault(Path(folder).resolve(), Path(folder))
+    per_folder = [_load_folder(folder, warn) for folder in unique.values()]
+    refuse_shared_configurations(per_folder)
+    return [run for runs in per_folder for run in runs]
+
+
+def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
+    """The results files of one folder, sorted by name (see :func:`load_runs`)."""
     if not folder.is_dir():
         raise InputError(f"results folder {folder} does not exist")
     runs = []
     for path in sorted(folder.glob("*.json")):
-        if path.name.startswith("."):
+        if path.name.startswith("."):  # doabench's own temporary files
             continue
         data = path.read_bytes()
         try:
             results = json.loads(data)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise InputError(f"{path} is not valid JSON ({exc}); fix or remove it") from None
-        schema = results.get("schema") if isinstance(results, dict) else None
-        if not (isinstance(schema, str) and schema.startswith(SCHEMA_PREFIX)):
+        problem = results_problem(results)
+        if problem:
+            warn(f"skipped {display_path(path)}: {problem}")
             continue
-        if schema not in SUPPORTED_SCHEMAS:
-            raise InputError(f"{path} has results schema {schema!r}; this doabench reads {', '.join(SUPPORTED_SCHEMAS)}")
-        for key in ("task", "tracker", "summary", "environment"):
-            if not isinstance(results.get(key), dict):
-                raise InputError(f"{path} lacks the {key!r} section of a results file")
         runs.append(RunFile(display_path(path), hashlib.sha256(data).hexdigest(), results))
     return runs
+
+
+def refuse_shared_configurations(per_folder: Sequence[Sequence[RunFile]]) -> None:
+    """One line (InputError) when one configuration (:func:`configuration_key`) has files in two
+    of the folders (``per_folder``: each folder's runs): neither may silently supersede the other."""
+    seen: dict[tuple, tuple[int, RunFile]] = {}
+    for index, runs in enumerate(per_folder):
+        for run in runs:
+            first, other = seen.setdefault((run.task_id, configuration_key(run)), (index, run))
+            if first != index:
+                raise InputError(f"{other.path} and {run.path} are one configuration ({run.task_id}, {run.tracker_id}) "
+                                 "in two results folders; leave one of the files or folders out")
 
 
 def load_references(path: str | Path) -> list[ReferenceRow]:

@@ -10,11 +10,10 @@ from typing import Any, Mapping
 
 import pandas as pd
 
-from doabench.envs.registry import get_task_spec
-from doabench.envs.sources import recorded_identity
-from doabench.errors import DoabenchError, InputError
+from doabench.errors import InputError
 from doabench.results.files import atomic_path, write_json
-from doabench.results.labels import canonical_id
+from doabench.results.identity import canonical_id, results_task_options, results_weights_name
+from doabench.results.labels import run_label
 
 
 def _name_options(options: Mapping[str, Any] | None, weights_hash: str | None) -> dict[str, Any]:
@@ -62,19 +61,6 @@ def configuration(task_id: str, task_version: Any, tracker_id: str, options: Map
             "task_options": dict(task_options or {}),
             "tracker": str(tracker_id), "options": _name_options(options, weights_hash),
             "weights": weights_hash or None, "delays": delays or "nearest"}
-
-
-def results_task_options(results: Mapping[str, Any]) -> dict[str, Any]:
-    """The task options that are part of a run's identity (``task.options`` of its results; for a
-    file written before results held them, read back from ``task.source``)."""
-    task = results.get("task") or {}
-    if isinstance(task.get("options"), Mapping):
-        return dict(task["options"])
-    try:
-        spec = get_task_spec(str(task.get("id")))
-    except DoabenchError:  # a plug-in task not installed here: its source alone says it
-        spec = None
-    return recorded_identity(spec, str(task.get("kind")), task.get("source") or {})
 
 
 def results_configuration(results: Mapping[str, Any]) -> dict[str, Any]:
@@ -163,11 +149,24 @@ def alias_files(results: Mapping[str, Any], out_dir: str | Path) -> list[Path]:
     return found
 
 
+def weights_line(tracker: Mapping[str, Any]) -> str:
+    """``weights: moving (sha256 8ce3ea54bcd7, cross3d-16x32-moving.safetensors)``: which weights a
+    tracker (its ``describe()``, or a results file's ``tracker``) runs, as ``run`` and ``track`` print it."""
+    digest = tracker.get("weights_hash")
+    if not digest:
+        if tracker.get("trained") is False or tracker.get("untrained"):
+            return "weights: none (random initialisation, untrained)"
+        return "weights: none (no learned weights)"
+    name = tracker.get("weights_name") or "(not a shipped file)"
+    where = tracker.get("weights") or (tracker.get("options") or {}).get("weights")
+    return f"weights: {name} (sha256 {digest[:12]}" + (f", {Path(str(where)).name})" if where else ")")
+
+
 def format_summary(results: dict[str, Any]) -> str:
     """The table ``doabench run`` prints."""
     s = results["summary"]
     lines = [
-        f"task {results['task']['id']} v{results['task']['version']} | tracker {results['tracker']['id']} "
+        f"task {results['task']['id']} v{results['task']['version']} | tracker {run_label(results)} "
         f"| {results['task']['episodes_run']} episodes | causal: {str(results['causal']).lower()}",
         f"{'metric (pooled over frames)':<34}{'value':>10}",
         f"{'RMSAE all frames [deg]':<34}{s['rmsae_all']:>10.2f}   95% CI [{s['rmsae_all_ci95'][0]:.2f}, "
@@ -184,6 +183,15 @@ def format_summary(results: dict[str, Any]) -> str:
     if rec:
         lines.insert(2, f"{'RMSAE all, mean of recordings [deg]':<34}{rec['rmsae_all']:>10.2f}   (headline, "
                         f"the paper's Table II; non-silent {rec['rmsae_nonsilent']:.2f})")
+    lines[1:1] = [weights_line({**results["tracker"], "weights_name": results_weights_name(results)})]
+    if "lag_s" in s:  # moving-talker tasks: how far behind, and the error by the talker's angular speed
+        lag = s.get("lag_s")
+        lines.append(f"{'tracking lag [s]':<34}{lag:>10.2f}" if lag is not None else
+                     f"{'tracking lag [s]':<34}{'none':>10}   ({s.get('lag_note') or 'not defined'})")
+    bands = {k: v for k, v in (s.get("speed_bands") or {}).items() if v.get("n_frames")}
+    if bands:
+        lines.append(f"{'RMSAE by angular speed [deg/s]':<34}" + "   ".join(
+            f"{band}: {v['rmsae']:.2f} ({v['n_frames']} fr)" for band, v in bands.items()))
     scoring = results.get("scoring") or {}
     notes = []
     if scoring.get("vad"):

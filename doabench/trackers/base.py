@@ -124,6 +124,31 @@ class Tracker:
         """SHA-256 of the weights file it loaded, if any."""
         return None
 
+    @property
+    def weights_name(self) -> str | None:
+        """The short name of the shipped weights it runs (``paper``, ``moving``), if it ships named
+        weights and runs one of them (``--tracker-opt weights=NAME`` selects it)."""
+        return None
+
+    @property
+    def plain_weights_name(self) -> str | None:
+        """The name of the weights that a run leaves unnamed in its options (a tracker's first,
+        plain weights: results made with them always carried no weights option); None: none."""
+        return None
+
+    @classmethod
+    def shipped_weights(cls) -> list[dict[str, Any]]:
+        """Every shipped weights file of this tracker, for ``doabench list weights``: dicts with
+        ``tracker`` (canonical id), ``name``, ``default`` (bool: what runs without a weights option),
+        ``file``, ``sha256``, ``task`` (trained on) and ``headline`` (``{task: {"rmsae_all", "lag_s", ...}}``)."""
+        return []
+
+    @classmethod
+    def named_weights(cls, spec: str | None) -> dict[str, str]:
+        """``{sha256: name}`` of the shipped weights of this tracker at ``spec`` (empty: none), so a
+        results file's weights hash reads back as a name."""
+        return {}
+
     def parameter_count(self) -> int:
         """Trainable parameters (0 for classical trackers)."""
         return 0
@@ -142,6 +167,7 @@ class Tracker:
             "receptive_field_frames": self.receptive_field_frames,
             "frame": self.frame_spec.to_dict(),
             "weights_hash": self.weights_hash(),
+            "weights_name": self.weights_name,
         }
 
     # -- the work -------------------------------------------------------------------------------

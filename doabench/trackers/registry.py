@@ -172,8 +172,11 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
       resolution it runs at: ``cross3d`` -> ``cross3d:16x32``, ``srp-max`` -> ``srp-max:16x32``,
       ``srp-max --tracker-opt resolution=8x16`` -> ``srp-max:8x16``.
     * Options equal to the constructor's defaults are dropped (``hold=auto``, ``seed=0``).
-    * ``weights=FILE`` is dropped when the file is the weights the tracker loads by default (the
-      same SHA-256): the shipped model named by its path is the shipped model.
+    * Shipped weights are named by their short name (``weights=moving``, however they were
+      chosen: by name, by a path to the file or a copy of it, or as the default), except the
+      tracker's plain weights (:attr:`Tracker.plain_weights_name`), which leave no option, as their
+      results always had. A tracker without named weights drops ``weights=FILE`` when the file is
+      the weights it loads by default (the same SHA-256).
 
     ``tracker``: the instance built from ``text`` and ``options`` (built here when None)."""
     import inspect
@@ -200,6 +203,13 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
         if p is not None and p.default is not inspect.Parameter.empty and key != "weights" and (
                 options[key] == p.default or str(options[key]) == str(p.default)):
             del options[key]
+    named = tracker.weights_name
+    if named is not None:
+        if named == tracker.plain_weights_name:
+            options.pop("weights", None)
+        else:
+            options["weights"] = named
+        return canonical, options
     weights = options.get("weights")
     if weights is not None and str(weights).lower() not in ("random", "none", "false", "") and tracker.weights_hash():
         others = {k: v for k, v in options.items() if k != "weights"}
@@ -214,6 +224,19 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
         if default == tracker.weights_hash():
             del options["weights"]
     return canonical, options
+
+
+def weights_name(tracker_id: str, weights_hash: str | None) -> str | None:
+    """The short name of the shipped weights with this SHA-256 for the tracker ``tracker_id``
+    (canonical id), from its class's :meth:`Tracker.named_weights`; None when it is not one of them
+    or the tracker is not installed here."""
+    if not weights_hash:
+        return None
+    try:
+        cls, spec, _ = resolve_tracker(tracker_id)
+        return cls.named_weights(spec).get(weights_hash)
+    except DoabenchError:
+        return None
 
 
 def make_tracker(text: str, **options: Any) -> Tracker:

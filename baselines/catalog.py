@@ -1,0 +1,159 @@
+"""Weights by name: every shipped weights file of a tracker has a short name, as torchvision's
+weight enums do, and each tracker has a default chosen by a stated rule (docs/models.md).
+
+The catalog is ``baselines/weights/catalog.json``::
+
+    {"format": "doabench-weights-catalog/1",
+     "weights": [{"tracker": "cross3d:16x32", "name": "moving", "file": "cross3d-16x32-moving.safetensors",
+                  "run": "cross3d-16x32-moving", "task": "sim-train-moving",
+                  "headline": {"sim-grid": {"rmsae_all": 12.05, "lag_s": 0.35, ...}, ...}}, ...],
+     "defaults": {"cross3d": "cross3d:16x32", "cross3d:16x32": "moving", ...}}
+
+``tracker`` is the canonical id the file's weights run as; ``name`` is what ``--tracker-opt
+weights=NAME`` types. ``defaults`` holds, per canonical id, the name used without a weights option,
+and per tracker whose id names a map resolution (``cross3d``) the canonical id that the bare name
+runs as. ``headline`` and ``defaults`` are written by ``scripts/weights_catalog.py`` from the
+committed results; names, files and runs are written by hand when a file ships. A file's SHA-256 is
+the one the manifest (``SHA256SUMS``) records, which loading checks.
+
+The *plain* weights of a tracker are the file named ``<model>[-<res>].safetensors`` (the paper
+recipe's): a run with them carries no weights option, as results always had, so their results keep
+their names; every other named file is a ``weights=NAME`` option of the run.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from doabench.errors import ConfigError, InputError
+
+from . import weights as W
+
+FORMAT = "doabench-weights-catalog/1"
+CATALOG_NAME = "catalog.json"
+#: ``weights=default``: the tracker's default, as without the option
+DEFAULT = "default"
+
+
+@dataclass(frozen=True)
+class NamedWeights:
+    """One shipped weights file: its tracker's canonical id, short name and file, the training run
+    it came from and its task, and headline figures from the committed results."""
+
+    tracker: str
+    name: str
+    file: str
+    run: str | None = None
+    task: str | None = None
+    headline: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def path(self) -> Path:
+        return Path(W.SHIPPED_DIR) / self.file
+
+    @property
+    def sha256(self) -> str | None:
+        """The SHA-256 the manifest records for the file (loading checks the file against it)."""
+        return W.read_manifest(W.SHIPPED_DIR).get(self.file)
+
+
+def read_catalog(folder: str | Path | None = None) -> dict[str, Any]:
+    """The catalog as stored (``{"weights": [], "defaults": {}}`` where a folder has none)."""
+    path = Path(folder or W.SHIPPED_DIR) / CATALOG_NAME
+    if not path.is_file():
+        return {"format": FORMAT, "weights": [], "defaults": {}}
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path} is not valid JSON ({exc}); reinstall doabench") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise InputError(f"{path} is not a {FORMAT} catalog; reinstall doabench")
+    return data
+
+
+def tracker_id(model_name: str, resolution: tuple[int, int] | None) -> str:
+    """``cross3d:16x32``, or ``gcc-cnn1d`` for a model without a map resolution."""
+    return model_name if resolution is None else f"{model_name}:{W.resolution_text(resolution)}"
+
+
+def all_named() -> list[NamedWeights]:
+    """Every named weights file of the catalog; where there is no catalog, each shipped file named
+    like a plain one (``<model>[-<res>].safetensors``) is that model's ``paper`` weights."""
+    entries = read_catalog()["weights"]
+    if entries:
+        return [NamedWeights(**{k: e[k] for k in ("tracker", "name", "file", "run", "task", "headline") if k in e})
+                for e in entries]
+    found = []
+    for path in sorted(Path(W.SHIPPED_DIR).glob("*.safetensors")):
+        head, _, tail = path.stem.rpartition("-")
+        try:  # cross3d-16x32, max-cnn1d-64x128: the last part is a resolution
+            resolution = W.parse_resolution(tail) if head else None
+        except ConfigError:
+            resolution = None
+        model = head if resolution is not None else path.stem
+        found.append(NamedWeights(tracker_id(model, resolution), "paper", path.name))
+    return found
+
+
+def named_weights(model_name: str, resolution: tuple[int, int] | None) -> dict[str, NamedWeights]:
+    """``{name: entry}`` of one tracker's shipped weights, by name."""
+    wanted = tracker_id(model_name, resolution)
+    return {e.name: e for e in all_named() if e.tracker == wanted}
+
+
+def plain_name(model_name: str, resolution: tuple[int, int] | None) -> str | None:
+    """The name of the plain weights (``<model>[-<res>].safetensors``), None where none ships."""
+    plain = W.shipped_path(model_name, resolution).name
+    return next((n for n, e in named_weights(model_name, resolution).items() if e.file == plain), None)
+
+
+def default_name(model_name: str, resolution: tuple[int, int] | None) -> str | None:
+    """The name a tracker runs without a weights option: the catalog's default, else its plain
+    weights; None where it ships none."""
+    names = named_weights(model_name, resolution)
+    chosen = read_catalog()["defaults"].get(tracker_id(model_name, resolution))
+    if chosen in names:
+        return str(chosen)
+    return plain_name(model_name, resolution)
+
+
+def default_resolution(model_name: str) -> tuple[int, int] | None:
+    """The map resolution the bare tracker name runs at (``cross3d`` -> 16x32): the catalog's
+    default for the model, else the finest resolution with plain shipped weights."""
+    chosen = read_catalog()["defaults"].get(model_name)
+    if isinstance(chosen, str) and ":" in chosen:
+        return W.parse_resolution(chosen.split(":", 1)[1])
+    shipped = W.shipped_resolutions(model_name)
+    return shipped[-1] if shipped else None
+
+
+def name_of(model_name: str, resolution: tuple[int, int] | None, sha256: str | None) -> str | None:
+    """The name of the shipped weights with this SHA-256 for this tracker (None: not shipped)."""
+    if not sha256:
+        return None
+    return next((n for n, e in named_weights(model_name, resolution).items() if e.sha256 == sha256), None)
+
+
+def resolve(model_name: str, resolution: tuple[int, int] | None, weights: str | None) -> Path | None:
+    """The shipped file that ``weights`` names for this tracker: None (or ``default``) is its
+    default; a name of :func:`named_weights` is that file. Returns None when ``weights`` is not a
+    name (a file path, which the caller reads). A name-like value (no folder, no ``.safetensors``)
+    that names nothing here is refused in one line, with the names this tracker has and the
+    trackers whose name it is."""
+    names = named_weights(model_name, resolution)
+    if weights is None or str(weights) == DEFAULT:
+        name = default_name(model_name, resolution)
+        return names[name].path if name is not None else None
+    text = str(weights)
+    if text in names:
+        return names[text].path
+    if "/" in text or "\\" in text or text.endswith(".safetensors") or Path(text).expanduser().exists():
+        return None
+    here = tracker_id(model_name, resolution)
+    known = ", ".join([DEFAULT, *sorted(names)]) if names else "none (no weights ship for it)"
+    elsewhere = sorted(e.tracker for e in all_named() if e.name == text)
+    hint = f"; {text!r} names weights of {', '.join(elsewhere)}" if elsewhere else ""
+    raise ConfigError(f"unknown weights {text!r} for {here}: its weights names are {known}{hint} "
+                      "(or give a weights file path)")

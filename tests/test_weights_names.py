@@ -1,0 +1,175 @@
+"""Shipped weights by name (docs/models.md, "Weights by name"): names resolve to the files whose
+SHA-256 the training records hold, the default follows the stated rule on the committed results,
+bad names and files are refused in one line before any work, and every view prints the name."""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from doabench.cli.main import main
+from doabench.errors import ConfigError, DoabenchError
+from doabench.results.default_weights import choose, headline, judge
+from doabench.trackers.registry import canonical_tracker, make_tracker
+from doabench_baselines import catalog as C
+from doabench_baselines import weights as W
+
+from conftest import ROOT
+
+RUN = ["run", "--task", "sim-demo", "--episodes", "1", "--quiet", "--no-frames"]
+
+
+def test_every_name_resolves_to_the_file_whose_hash_its_training_record_holds() -> None:
+    entries = C.all_named()
+    assert {(e.tracker, e.name) for e in entries} >= {("cross3d:16x32", "paper"), ("cross3d:16x32", "moving"),
+                                                      ("cross3d:8x16", "moving"), ("gcc-cnn1d", "paper")}
+    manifest = W.read_manifest(W.SHIPPED_DIR)
+    assert sorted(e.file for e in entries) == sorted(manifest), "every shipped file has a name, and only those"
+    for e in entries:
+        digest = W.sha256_file(e.path)
+        assert digest == manifest[e.file] == e.sha256
+        exported = (ROOT / "training-runs" / str(e.run) / "exported.txt").read_text()
+        assert f"sha256 {digest}" in exported and e.file in exported, e.run
+        model, _, res = e.tracker.partition(":")
+        tracker = make_tracker(e.tracker, weights=e.name)
+        assert tracker.weights_hash() == digest and tracker.weights_name == e.name
+        assert W.read_metadata(e.path)["training"]["task"] == e.task
+
+
+def test_the_catalog_is_what_the_rule_gives_on_the_committed_results() -> None:
+    out = subprocess.run([sys.executable, str(ROOT / "scripts" / "weights_catalog.py"), "--check"],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    defaults = C.read_catalog()["defaults"]
+    # today's results: the moving-talker weights keep up (lag <= 0.3 s) and the paper ones do not
+    assert defaults["cross3d:16x32"] == "moving" and defaults["cross3d"] == "cross3d:16x32"
+    assert defaults["gcc-cnn1d"] == "paper"
+
+
+def _results(tracker: str, sha: str, task: str, rmsae: float, lag: float | None, complete: bool = True) -> dict:
+    return {"task": {"id": task, "episodes_run": 10 if complete else 5, "episodes_total": 10},
+            "tracker": {"id": tracker, "weights_hash": sha, "options": {}},
+            "features": {"delays": "nearest"},
+            "summary": {"rmsae_all": rmsae, "rmsae_nonsilent": rmsae / 2, "lag_s": lag}}
+
+
+def test_the_rule_picks_the_lowest_mean_among_the_weights_that_keep_up() -> None:
+    runs = [
+        # "slow": best on average but lags 0.8 s on sim-walk -> not eligible
+        _results("m:8x8", "s" * 64, "sim-grid", 5.0, None), _results("m:8x8", "s" * 64, "sim-walk", 9.0, 0.8),
+        _results("m:8x8", "s" * 64, "sim-turn", 9.0, 0.25),
+        # "fast" and "steady" keep up; "steady" has the lower mean (10 vs 11)
+        _results("m:8x8", "f" * 64, "sim-grid", 9.0, None), _results("m:8x8", "f" * 64, "sim-walk", 12.0, 0.1),
+        _results("m:8x8", "f" * 64, "sim-turn", 12.0, 0.3),
+        _results("m:8x8", "t" * 64, "sim-grid", 8.0, None), _results("m:8x8", "t" * 64, "sim-walk", 11.0, 0.2),
+        _results("m:8x8", "t" * 64, "sim-turn", 11.0, 0.2),
+        # "partial": only a partial run of sim-turn -> not eligible
+        _results("m:8x8", "p" * 64, "sim-grid", 1.0, None), _results("m:8x8", "p" * 64, "sim-walk", 1.0, 0.1),
+        _results("m:8x8", "p" * 64, "sim-turn", 1.0, 0.1, complete=False),
+        # another tracker's run with the same hash does not count
+        _results("other:8x8", "t" * 64, "sim-grid", 0.1, None),
+    ]
+    names = {"slow": "s", "fast": "f", "steady": "t", "partial": "p"}
+    figures = {n: headline(runs, "m:8x8", c * 64) for n, c in names.items()}
+    assert figures["steady"]["sim-grid"]["rmsae_all"] == 8.0
+    chosen, verdicts = choose(figures, plain="slow")
+    assert chosen == "steady"
+    why = {v.name: v.reason for v in verdicts}
+    assert "lags 0.80 s on sim-walk" in why["slow"] and "no complete run of sim-turn" in why["partial"]
+    assert judge("steady", figures["steady"]).score == pytest.approx(10.0)
+    # nothing eligible: the plain weights
+    assert choose({"slow": figures["slow"]}, plain="slow")[0] == "slow"
+    # an undefined lag (the tracker does not follow) is not eligible either
+    no_lag = {**figures["steady"], "sim-turn": {**figures["steady"]["sim-turn"], "lag_s": None}}
+    assert not judge("x", no_lag).eligible
+
+
+def test_names_and_paths_name_one_configuration() -> None:
+    by_default = make_tracker("cross3d")
+    by_name = make_tracker("cross3d", weights="moving")
+    by_path = make_tracker("cross3d:16x32", weights=str(W.SHIPPED_DIR / "cross3d-16x32-moving.safetensors"))
+    assert by_default.weights_hash() == by_name.weights_hash() == by_path.weights_hash()
+    for t, text, opts in ((by_default, "cross3d", {}), (by_name, "cross3d", {"weights": "moving"}),
+                          (by_path, "cross3d:16x32", {"weights": str(by_path.options["weights"])})):
+        assert canonical_tracker(text, opts, t) == ("cross3d:16x32", {"weights": "moving"})
+    paper = make_tracker("cross3d", weights="paper")
+    # the plain weights leave no option: their committed results keep their file names
+    assert canonical_tracker("cross3d", {"weights": "paper"}, paper) == ("cross3d:16x32", {})
+    assert make_tracker("cross3d", weights="default").weights_hash() == by_default.weights_hash()
+
+
+def test_an_unknown_name_lists_the_names_and_a_name_of_another_tracker_says_whose() -> None:
+    with pytest.raises(ConfigError) as exc:
+        make_tracker("cross3d:16x32", weights="movng")
+    text = str(exc.value)
+    assert "\n" not in text and "default, moving, paper, paper-v3" in text
+    with pytest.raises(ConfigError) as exc:
+        make_tracker("cross3d:4x8", weights="moving")
+    assert "names weights of cross3d:16x32, cross3d:8x16" in str(exc.value)
+
+
+def test_a_file_for_another_resolution_is_refused_before_any_work(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "r"
+    code = main([*RUN, "--tracker", "cross3d:8x16", "--tracker-opt",
+                 f"weights={W.SHIPPED_DIR / 'cross3d-16x32-moving.safetensors'}", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "16x32" in err and "8x16" in err
+    assert not out.exists()
+
+
+def test_a_renamed_or_missing_shipped_file_is_refused(tmp_path: Path, monkeypatch) -> None:
+    folder = tmp_path / "weights"
+    folder.mkdir()
+    for name in ("cross3d-16x32.safetensors", "SHA256SUMS", C.CATALOG_NAME):
+        shutil.copy(W.SHIPPED_DIR / name, folder / name)
+    monkeypatch.setattr(W, "SHIPPED_DIR", folder)
+    assert make_tracker("cross3d:16x32", weights="paper").weights_name == "paper"
+    with pytest.raises(DoabenchError, match="cross3d-16x32-moving.safetensors does not exist"):
+        make_tracker("cross3d:16x32", weights="moving")  # named in the catalog, missing on disk
+    (folder / "cross3d-16x32.safetensors").rename(folder / "cross3d-16x32-old.safetensors")
+    with pytest.raises(DoabenchError, match="does not exist"):
+        make_tracker("cross3d:16x32", weights="paper")
+    with pytest.raises(DoabenchError, match="not listed in"):
+        make_tracker("cross3d:16x32", weights=str(folder / "cross3d-16x32-old.safetensors"))
+
+
+def test_run_uses_the_default_says_which_and_records_the_name(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "r"
+    assert main([*RUN, "--tracker", "cross3d", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "weights: moving (sha256 8ce3ea54bcd7" in captured.err
+    assert "tracker cross3d:16x32 (weights=moving)" in captured.out
+    (path,) = out.glob("*.json")
+    data = json.loads(path.read_text())
+    assert path.name == "sim-demo__cross3d_16x32__65934501.json"  # the stem the moving weights always had
+    assert data["tracker"]["weights_name"] == "moving" and data["tracker"]["options"] == {"weights": "moving"}
+    assert main([*RUN, "--tracker", "cross3d", "--tracker-opt", "weights=paper", "--out", str(out)]) == 0
+    plain = json.loads((out / "sim-demo__cross3d_16x32.json").read_text())
+    assert plain["tracker"]["weights_name"] == "paper" and plain["tracker"]["options"] == {}
+
+
+def test_views_print_the_name_of_committed_results_made_before_names_existed() -> None:
+    from doabench.results.labels import run_label
+    from doabench.results.leaderboard import reproduce_command
+
+    paper = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32.json").read_text())
+    moving = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32__65934501.json").read_text())
+    assert "weights_name" not in paper["tracker"]
+    assert run_label(paper) == "cross3d:16x32 (weights=paper)"
+    assert run_label(moving) == "cross3d:16x32 (weights=moving)"
+    # reproducible by name, whatever the default is now
+    assert "--tracker-opt weights=paper" in reproduce_command(paper)
+    assert re.search(r"--tracker-opt weights=moving( |$)", reproduce_command(moving))
+
+
+def test_list_weights_shows_each_name_its_default_and_figures(capsys) -> None:
+    assert main(["list", "weights"]) == 0
+    text = capsys.readouterr().out
+    line = next(ln for ln in text.splitlines() if ln.startswith("cross3d:16x32") and " moving" in ln)
+    assert "moving *" in line and "sim-train-moving" in line and "18.51, lag 0.15 s" in line
+    assert any(ln.startswith("cross3d:16x32") and "paper " in ln and "*" not in ln for ln in text.splitlines())
