@@ -17,11 +17,14 @@ DEMO_OUT ?= runs/demo
 
 setup: $(STAMP)
 
+# PYTHONWARNINGS: setuptools reports every editable install of a package with renamed folders
+# (baselines/ is doabench_baselines) as a warning, "Editable installation. Please be careful with
+# folders in your working directory ..."; it is information only (setuptools.warnings.InformationOnly).
 $(STAMP): pyproject.toml setup.py Makefile
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet "$(TORCH_PIN)" $(if $(TORCH_INDEX_URL),--index-url "$(TORCH_INDEX_URL)")
-	$(BIN)/pip install --quiet -e ".[test,ray,onnx]"  # the Ray and ONNX tests run in CI too
+	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/pip install --quiet -e ".[test,ray,onnx]"  # the Ray and ONNX tests run in CI too
 	touch $(STAMP)
 
 demo: setup

@@ -10,6 +10,8 @@ defaults `doabench train` uses (workers, precision, compile), timed over its sec
 
     .venv/bin/python benchmarks/bench_training.py --librispeech ../shared/data/LibriSpeech \\
         --resolutions 16x32 8x16 --items 8 --e2e 16x32 --e2e-items 60
+    .venv/bin/python benchmarks/bench_training.py --resolutions 32x64 --layers 32x64 --e2e 32x64 \\
+        --e2e-threads 2 --e2e-items 40     # where a 32x64 step goes, and two threads end to end
     .venv/bin/python benchmarks/bench_training.py --items 10 \\
         --trackers cross3d:8x16 cross3d:4x8 gcc-cnn1d max-cnn1d:64x128 spec-cnn2d seldnet   # any learned tracker
     python3 benchmarks/bench_training.py --items 10 --trackers cross3d:16x32 --device cuda --json costs.json
@@ -119,14 +121,56 @@ def tracker_costs(tracker: str, librispeech: str, n_items: int, compiled: bool =
     return {"item": item_s, "step": (clock() - t0) / repeats / n_items}
 
 
-def end_to_end(tracker: str, librispeech: str, n_items: int) -> dict[str, float]:
-    """Trajectories/s over the second epoch of a short run with `doabench train`'s defaults."""
+def layer_costs(resolution: str, batch: int = 10, frames: int = 103, repeats: int = 2) -> list[tuple[str, float]]:
+    """CPU seconds per trajectory of the forward + backward of each convolution of Cross3D at
+    ``resolution`` (bf16, channels-last, one thread), grouped as the network has them: where a
+    training step's time goes. The step's remainder (activations, pooling, padding, Adam) is the
+    compiled step minus their sum."""
+    from baselines.cross3d import Cross3D
+
+    n_theta, n_phi = (int(v) for v in resolution.split("x"))
+    model = Cross3D(n_theta, n_phi)
+
+    def conv_cost(conv: torch.nn.Module, in_shape: tuple[int, ...], grad_input: bool) -> float:
+        x = torch.randn(batch, *in_shape)
+        if x.dim() == 5:
+            x = x.contiguous(memory_format=torch.channels_last_3d)
+        x = x.bfloat16().requires_grad_(grad_input)
+        layer = type(conv)(conv.in_channels, conv.out_channels, conv.kernel_size, dilation=conv.dilation).bfloat16()
+
+        def step() -> None:
+            layer(x).float().sum().backward()
+
+        step()
+        t0 = time.process_time()
+        for _ in range(repeats):
+            step()
+        return (time.process_time() - t0) / repeats / batch
+
+    k_t = 4  # causal padding: kernel 5 in time
+    rows = [("input 3->32, 5x5x5", conv_cost(model.input.conv, (3, frames + k_t, n_theta + 4, n_phi + 4), False))]
+    for level in range(model.n_layers):
+        h_phi = (n_theta, n_phi >> level)
+        h_theta = (n_theta >> level, n_phi)
+        cost = sum(conv_cost(model.branch_phi[level].conv, (32, frames + k_t, h[0] + 2, h[1] + 2), True)
+                   for h in (h_phi, h_theta))
+        rows.append((f"branches, level {level + 1} ({h_phi[0]}x{h_phi[1]} and {h_theta[0]}x{h_theta[1]})", cost))
+    rows.append((f"1D {model.sequence_channels}->128 and 128->3",
+                 conv_cost(model.hidden.conv, (model.sequence_channels, frames + 8), True)
+                 + conv_cost(model.output.conv, (128, frames + 8), True)))
+    return rows
+
+
+def end_to_end(tracker: str, librispeech: str, n_items: int, threads: int | None = None) -> dict[str, float]:
+    """Trajectories/s over the second epoch of a short run with `doabench train`'s defaults
+    (``threads``: the training process's torch threads, as ``train --threads``)."""
     from doabench.training.recipes import paper_recipe
 
     out = Path(tempfile.mkdtemp()) / "run"
     recipe = paper_recipe().replace(epochs=2, trajectories_per_epoch=n_items, val_trajectories=4)
     opts = TrainOptions(tracker=tracker, out=out, recipe=recipe, librispeech=librispeech, progress=False,
-                        tracker_options={"weights": "random"}, compile=True, cache_root=out.parent / "cache")
+                        tracker_options={"weights": "random"}, compile=True, cache_root=out.parent / "cache",
+                        threads=threads)
     history = Trainer(opts, log=lambda m: None).run()
     shutil.rmtree(out.parent, ignore_errors=True)
     row = history[-1]
@@ -141,6 +185,10 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=10)
     ap.add_argument("--e2e", nargs="*", default=["16x32"], help="resolutions to run end to end (none: skip)")
     ap.add_argument("--e2e-items", type=int, default=60, help="trajectories per epoch of the end-to-end run")
+    ap.add_argument("--e2e-threads", type=int, default=None,
+                    help="torch threads of the end-to-end run's training process (default: train's, 1 beside workers)")
+    ap.add_argument("--layers", nargs="*", default=[], metavar="RES",
+                    help="also time each convolution of Cross3D at these resolutions (forward + backward per trajectory)")
     ap.add_argument("--trackers", nargs="*", default=[],
                     help="learned trackers whose item and compiled-step costs to time with the trainer itself "
                          "(e.g. cross3d:4x8 gcc-cnn1d max-cnn1d:64x128 spec-cnn2d seldnet); then only these")
@@ -175,11 +223,18 @@ def main() -> None:
         for precision, compiled, label in (("fp32", False, "float32"), ("bf16", False, "bf16 autocast"),
                                            ("bf16", True, "bf16 autocast, compiled, channels-last")):
             print(f"| {res} | {label} | {step_cost(res, precision, compiled, args.batch):.3f} |", flush=True)
+    for res in args.layers:
+        print(f"| cross3d:{res} convolution (bf16, channels-last, forward + backward) | CPU s per trajectory |")
+        print("|---|---|")
+        rows = layer_costs(res, args.batch)
+        for name, cost in rows:
+            print(f"| {name} | {cost:.3f} |", flush=True)
+        print(f"| all convolutions | {sum(c for _, c in rows):.3f} |")
     for res in args.e2e:
         torch.set_num_threads(1)
-        r = end_to_end(f"cross3d:{res}", args.librispeech, args.e2e_items)
-        print(f"end to end cross3d:{res}: {r['trajectories_per_s']:.2f} trajectories/s "
-              f"(epoch of {args.e2e_items} in {r['epoch_s']:.1f} s)")
+        r = end_to_end(f"cross3d:{res}", args.librispeech, args.e2e_items, args.e2e_threads)
+        print(f"end to end cross3d:{res} ({args.e2e_threads or 'default'} threads): {r['trajectories_per_s']:.2f} "
+              f"trajectories/s (epoch of {args.e2e_items} in {r['epoch_s']:.1f} s)")
     print(f"load after {os.getloadavg()}")
 
 

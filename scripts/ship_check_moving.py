@@ -12,7 +12,7 @@ The targets a model must meet before it becomes the default ``cross3d``:
 The candidate's results come from one sweep (per-frame estimates are not needed), e.g.
 
     DOABENCH_EPISODE_CACHE=runs/episode-cache doabench sweep --trackers cross3d:16x32 \\
-        --tracker-opt weights=baselines/weights/cross3d-16x32-moving.safetensors \\
+        --tracker-opt weights=moving \\
         --tasks sim-walk,sim-turn,sim-grid,sim-pauses,sim-fan --no-frames --out runs/ship-check
     python scripts/ship_check_moving.py runs/ship-check
 

@@ -169,3 +169,25 @@ def test_every_package_is_in_the_distribution():
         folder = init.parent.relative_to(ROOT).as_posix()
         found.add(renamed.get(folder, folder.replace("/", ".")))
     assert found == listed, {"missing": sorted(found - listed), "not a package": sorted(listed - found)}
+
+
+def test_the_packaging_configuration_draws_no_setuptools_warning():
+    """What setuptools warns about when it builds the package (``make demo``'s install): a licence
+    given as a table instead of an SPDX string, and data folders without an ``__init__.py`` seen as
+    packages left out of the build (they are, with include-package-data). So the data files are
+    exactly package-data's, and that list must cover every file of the data folders."""
+    from fnmatch import fnmatch
+
+    project = _pyproject()
+    assert isinstance(project["project"]["license"], str)
+    assert any(r.replace(" ", "").startswith("setuptools>=77") for r in project["build-system"]["requires"])
+    tool = project["tool"]["setuptools"]
+    assert tool["include-package-data"] is False
+    folders = {**{pkg: pkg.replace(".", "/") for pkg in tool["package-data"]},
+               **{pkg: folder for pkg, folder in tool["package-dir"].items()}}
+    shipped = {(Path(folders[pkg]) / pattern).as_posix() for pkg, patterns in tool["package-data"].items()
+               for pattern in patterns}
+    for data in ("baselines/weights", "doabench/data/speech", "doabench/results/schemas"):
+        for path in (ROOT / data).iterdir():
+            rel = path.relative_to(ROOT).as_posix()
+            assert path.is_dir() or any(fnmatch(rel, p) for p in shipped), f"{rel} would not be installed"

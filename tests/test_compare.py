@@ -195,3 +195,69 @@ def test_two_renderings_of_the_same_scenes_pair_by_seed(tmp_path, capsys):
     no_shared = _results("srp-max:32x64", BASE, task="sim-walk-pra", seeds=list(range(900, 908)))
     with pytest.raises(Exception, match="share no scene seed"):
         cmp.compare(cmp.load_run(a), cmp.load_run(_write(tmp_path, "other.json", no_shared)), by_seed=True)
+
+
+def _with_bands(results: dict, fast_episodes: int = 1) -> dict:
+    """Speed bands in every row: the voice-active frames below 5 deg/s, and in the first
+    ``fast_episodes`` episodes 3 of them above 30 deg/s, with an error growing with the RMSAE."""
+    for i, row in enumerate(results["episodes"]):
+        fast = i < fast_episodes
+        row["speed_bands"] = {"<5": [row["rmsae_all"] ** 2 * (5 if fast else 8), 5 if fast else 8], "5-15": [0.0, 0],
+                              "15-30": [0.0, 0], ">30": [(row["rmsae_all"] + 1.0) ** 2 * 3 if fast else 0.0,
+                                                         3 if fast else 0]}
+    return results
+
+
+def test_a_line_backed_by_too_few_episodes_gets_no_verdict(tmp_path, capsys):
+    """Eight paired episodes, one with frames above 30 deg/s: the RMSAE line has its verdict, the
+    >30 deg/s line says how many episodes back it and gives no verdict and no interval, in the
+    Markdown, the CSV and the forest plot alike."""
+    a = _write(tmp_path, "a.json", _with_bands(_results("mine", [e + 2.0 for e in BASE], cells=1)))
+    b = _write(tmp_path, "b.json", _with_bands(_results("other", BASE, cells=1)))
+    c = cmp.compare(cmp.load_run(a), cmp.load_run(b))
+    pooled = {r.metric.key: r for r in c.pooled}
+    assert pooled["rmsae_all"].n_contributing == 8 and pooled["rmsae_all"].verdict == cmp.WORSE
+    fast = pooled["rmsae_speed_>30"]
+    assert fast.n_contributing == 1 and fast.verdict == cmp.TOO_FEW and fast.diff > 0
+    assert fast.low == pytest.approx(fast.high)  # one episode: every resample holds the same value
+    assert pooled["rmsae_speed_15-30"].n_contributing == 0 and pooled["rmsae_speed_15-30"].verdict == cmp.TOO_FEW
+    assert main(["compare", str(a), str(b), "--csv", str(tmp_path / "c.csv"), "--plot", str(tmp_path / "f")]) == 0
+    out = capsys.readouterr().out
+    assert "| metric | n |" in out
+    line = next(x for x in out.splitlines() if x.startswith("| RMSAE voice-active, truth moving >30 deg/s"))
+    assert line.endswith(f"| 1 | {cmp._fmt(fast.a, 'deg')} | {cmp._fmt(fast.b, 'deg')} | {cmp._fmt(fast.diff, 'deg', True)} "
+                         "| too few episodes |"), line
+    assert "[" not in line and "worse" not in line
+    rows = {r["metric"]: r for r in csv.DictReader((tmp_path / "c.csv").open())}
+    assert rows["rmsae_speed_>30"]["verdict"] == "too few episodes" and rows["rmsae_speed_>30"]["n_contributing"] == "1"
+    assert rows["rmsae_all"]["n_contributing"] == "8"
+    # the forest plot: the RMSAE line in its verdict's colour with its interval, the other hollow and bare
+    import matplotlib.pyplot as plt
+
+    fig = cmp.forest_figure([c], metrics=("rmsae_all", "rmsae_speed_>30"))
+    left, right = fig.axes[:2]
+    assert len(left.containers) == 1 and right.containers == []
+    hollow = [ln for ln in right.lines if ln.get_marker() not in (None, "None", "")]
+    assert len(hollow) == 1 and hollow[0].get_markerfacecolor() == "none"
+    assert hollow[0].get_color() not in cmp.VERDICT_COLOURS.values()
+    plt.close(fig)
+
+
+def test_the_episodes_a_verdict_needs_can_be_set_and_cells_count_too_few(tmp_path, capsys):
+    """Three episodes are too few by default; --min-episodes 3 allows a verdict on them. Cells of 4
+    episodes are too few for a verdict, and the cell tally says so."""
+    a = _write(tmp_path, "a.json", _results("mine", [e + 2.0 for e in BASE[:3]], cells=1))
+    b = _write(tmp_path, "b.json", _results("other", BASE[:3], cells=1))
+    assert cmp.compare(cmp.load_run(a), cmp.load_run(b)).pooled[0].verdict == cmp.TOO_FEW
+    assert cmp.compare(cmp.load_run(a), cmp.load_run(b), min_episodes=3).pooled[0].verdict == cmp.WORSE
+    assert main(["compare", str(a), str(b), "--min-episodes", "3"]) == 0
+    assert "| RMSAE all frames (deg) | 3 |" in capsys.readouterr().out
+    assert main(["compare", str(a), str(b), "--min-episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "--min-episodes must be at least 2" in err and len(err.strip().splitlines()) == 1
+    grid_a = _write(tmp_path, "ga.json", _results("mine", [e + 2.0 for e in BASE]))
+    grid_b = _write(tmp_path, "gb.json", _results("other", BASE))
+    grid = cmp.compare(cmp.load_run(grid_a), cmp.load_run(grid_b))
+    assert all(r.verdict == cmp.TOO_FEW for r in grid.cells) and grid.pooled[0].verdict == cmp.WORSE
+    assert cmp.cell_summary(grid) == ("better in 0, worse in 0, no significant difference in 0, too few episodes in 2 "
+                                      "of 2 cells")

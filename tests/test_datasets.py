@@ -94,6 +94,52 @@ def test_file_schema_attributes_and_episode_contents(reference):
         assert meta["seed"] == g.attrs["seed"] and meta["scene"]["seed"] == g.attrs["seed"]
 
 
+def _n_axes(axes: str) -> int:
+    """Axes named in ``"(frame, [x, y, z])"``: top-level entries; a bracketed list is one axis."""
+    inner, depth, entries, current = axes.strip()[1:-1], 0, [], ""
+    for ch in inner + ",":
+        depth += (ch == "[") - (ch == "]")
+        if ch == "," and depth == 0:
+            entries.append(current.strip())
+            current = ""
+        else:
+            current += ch
+    return len([e for e in entries if e])
+
+
+def test_every_dataset_names_its_units_and_axes(reference, tmp_path):
+    """A file describes itself: each dataset's units and axes (one per dimension) as attributes,
+    the truth angles' unit, what srp_max and the trajectory hold, the scene attributes' units."""
+    merged = tmp_path / "merged.h5"
+    merge_datasets([reference], merged)
+    for path in (reference, merged):
+        with h5py.File(path, "r") as f:
+            assert f["requested"].attrs["axes"] == "(episode,)"
+            g = f["episodes/000001"]
+            datasets = []
+            g.visititems(lambda name, obj: datasets.append((name, obj)) if isinstance(obj, h5py.Dataset) else None)
+            assert len(datasets) > 15
+            for name, ds in datasets:
+                assert isinstance(ds.attrs.get("units"), str) and ds.attrs.get("description"), name
+                assert _n_axes(ds.attrs["axes"]) == ds.ndim, (name, ds.attrs["axes"], ds.shape)
+            assert g["truth/elevation"].attrs["units"] == g["truth/azimuth"].attrs["units"] == "rad"
+            assert "zenith" in g["truth/elevation"].attrs["description"]
+            assert g["truth/times"].attrs["units"] == "s" and g["scene/trajectory"].attrs["units"] == "m"
+            assert g["features/srp_max_8x16"].attrs["axes"] == "(frame, [elevation, azimuth])"
+            assert "not the three components" in g["features/srp_max_8x16"].attrs["description"]
+            trajectory = g["scene/trajectory"].attrs
+            assert trajectory["axes"].startswith("(trajectory point,") and "differs from the frames" in \
+                " ".join(trajectory["description"].split())
+            assert json.loads(g["scene"].attrs["units"])["t60"] == "s"
+
+
+def test_dataset_info_shows_units_and_axes(reference, capsys):
+    assert main(["dataset", "info", str(reference)]) == 0
+    text = capsys.readouterr().out
+    line = next(l for l in text.splitlines() if l.strip().startswith("truth/elevation"))
+    assert line.endswith("[rad] (frame,)"), line
+
+
 def test_stored_features_and_truth_match_the_live_environment(reference):
     env = DoaEnv(TASK, features=("srp", "srp_max", "gcc"), resolution=(8, 16))
     _, feats, truth = env.load_episode(1)

@@ -52,5 +52,6 @@ def test_leaderboard_rows_carry_the_mark(learned, tmp_path):
     (tmp_path / "a.json").write_text(json.dumps(learned))
     files = build_leaderboards(tmp_path)
     page = files["sim-grid.md"]
-    assert "`cross3d:16x32` (in-distribution)" in page and "Training tasks: `cross3d:16x32` sim-train v1" in page
+    assert "`cross3d:16x32 (weights=paper)` (in-distribution)" in page
+    assert "Training tasks: `cross3d:16x32 (weights=paper)` sim-train v1" in page
     assert ",in (sim-train v1)" in files["sim-grid.csv"]

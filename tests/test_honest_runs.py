@@ -136,11 +136,12 @@ def test_aliases_resolve_to_one_canonical_id_and_options(tmp_path, monkeypatch):
     assert canonical_tracker("srp-max") == ("srp-max:16x32", {})
     assert canonical_tracker("srp-max", {"resolution": "8x16"}) == ("srp-max:8x16", {})
     assert canonical_tracker("srp-kalman:32x64", {"q": 0.01, "r": 0.2}) == ("srp-kalman:32x64", {"r": 0.2})
-    assert canonical_tracker("cross3d") == ("cross3d:16x32", {})
+    # the default weights are named (weights=moving); the plain paper-recipe file leaves no option
+    assert canonical_tracker("cross3d") == ("cross3d:16x32", {"weights": "moving"})
     shipped = str(ROOT / "baselines" / "weights" / "cross3d-16x32.safetensors")
     assert canonical_tracker("cross3d", {"weights": shipped, "hold": "auto"}) == ("cross3d:16x32", {})
     v3 = str(ROOT / "baselines" / "weights" / "cross3d-16x32-v3.safetensors")
-    assert canonical_tracker("cross3d", {"weights": v3}) == ("cross3d:16x32", {"weights": v3})
+    assert canonical_tracker("cross3d", {"weights": v3}) == ("cross3d:16x32", {"weights": "paper-v3"})
     assert canonical_tracker("gcc-cnn1d") == ("gcc-cnn1d", {})
     # a class given by its path keeps the path (the id must load it again)
     plugin = tmp_path / "plug"
@@ -204,7 +205,7 @@ def test_run_sweep_and_leaderboard_default_to_the_ignored_runs_folder():
         "run": parser.parse_args(["run", "--tracker", "srp-max", "--task", "sim-demo"]).out,
         "sweep": parser.parse_args(["sweep", "--trackers", "srp-max", "--tasks", "sim-demo"]).out,
         "leaderboard": parser.parse_args(["leaderboard"]).out,
-        "leaderboard --results": parser.parse_args(["leaderboard"]).results,
+        "leaderboard --results": parser.parse_args(["leaderboard"]).results[0],  # repeatable: one by default
     }
     assert defaults["leaderboard --results"] == defaults["run"]  # the tables of what run wrote
     for command, folder in defaults.items():

@@ -70,7 +70,7 @@ def results_dir(tmp_path: Path) -> Path:
         (d / f"sim-grid__{tracker.replace(':', '_')}.json").write_text(json.dumps(_results(tracker, value)))
     (d / "sim-demo__srp-max.json").write_text(json.dumps(_results("srp-max", 5.0, "sim-demo", 1, 4)))
     (d / "locata-3__srp-max.json").write_text(json.dumps(_results("srp-max", 20.0, "locata-3", 2, 2, True)))
-    (d / "notes.json").write_text(json.dumps({"something": "else"}))  # not a results file: ignored
+    (d / "notes.json").write_text(json.dumps({"something": "else"}))  # not a results file: skipped, named
     return d
 
 
@@ -233,3 +233,55 @@ def test_the_reproduce_command_takes_its_flags_from_the_task_kind(monkeypatch):
     monkeypatch.setitem(sources._KINDS, "tones", tones)
     assert reproduce_command(results("tones", {"recorded": True})).endswith("--task t --tone-root TONES_ROOT")
     assert reproduce_command(results("not-installed", {"recorded": True})).endswith("--task t")
+
+
+def test_several_results_folders_are_read_together(results_dir: Path, tmp_path: Path, capsys) -> None:
+    """Two --results folders give one board with the runs of both, and the tables' command names both."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "sim-grid__mine.json").write_text(json.dumps(_results("mine", 20.0)))
+    out = tmp_path / "boards"
+    assert cli(["leaderboard", "--results", str(results_dir), "--results", str(mine), "--out", str(out)]) == 0
+    page = (out / "sim-grid.md").read_text()
+    assert "`mine:16x32`" in page and "`srp-kalman:32x64`" in page and "`srp-max:8x16`" in page
+    assert page.index("`srp-kalman:32x64`") < page.index("`mine:16x32`") < page.index("`srp-max:8x16`")
+    assert f"--results {results_dir} --results {mine}" in page
+    # a folder given twice (another spelling) is read once
+    again = build_leaderboards([results_dir, results_dir / ".." / "results"])
+    assert again == build_leaderboards(results_dir)
+
+
+def test_one_configuration_in_two_folders_is_refused(results_dir: Path, tmp_path: Path, capsys) -> None:
+    """A configuration with a file in each folder is one line naming both files, never a silent pick."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "rerun.json").write_text(json.dumps(_results("srp-max:8x16", 29.0)))
+    with pytest.raises(InputError, match="one configuration .*in two results folders"):
+        load_runs([results_dir, mine])
+    assert cli(["leaderboard", "--results", str(results_dir), "--results", str(mine),
+                "--out", str(tmp_path / "o")]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "sim-grid__srp-max_8x16.json" in errors[0] and "rerun.json" in errors[0]
+    assert not (tmp_path / "o").exists()
+    # within one folder, files of one configuration are still shown once and listed as superseded
+    (results_dir / "rerun.json").write_text(json.dumps(_results("srp-max:8x16", 29.0)))
+    assert "## Superseded files" in build_leaderboards(results_dir)["sim-grid.md"]
+
+
+@pytest.mark.parametrize("content, reason", [
+    ({"schema": 3, "task": {"id": 5}}, '"schema" is 3: not a doabench results file'),
+    ({"something": "else"}, 'no "schema" field'),
+    ({"schema": "doabench.results/0", "task": {}}, "results schema 'doabench.results/0'; this doabench reads"),
+    ({"schema": "doabench.results/1", "task": {"id": 5}}, "task.id is 5 (the results schema wants type string)"),
+    ({"schema": "doabench.results/1"}, "no 'task' section"),
+])
+def test_a_json_file_that_is_not_a_results_file_is_named_and_skipped(results_dir: Path, tmp_path: Path, capsys,
+                                                                     content, reason) -> None:
+    (results_dir / "stray.json").write_text(json.dumps(content))
+    out = tmp_path / "boards"
+    capsys.readouterr()
+    assert cli(["leaderboard", "--results", str(results_dir), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    stray = [line for line in err.splitlines() if "stray.json" in line]
+    assert len(stray) == 1 and "skipped" in stray[0] and reason in stray[0], err
+    assert (out / "sim-grid.md").is_file()  # the other files are ranked as before

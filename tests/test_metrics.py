@@ -173,3 +173,76 @@ def test_a_static_source_has_no_defined_lag_and_pooling_skips_it():
     assert lag_from_curves([m, moving]) == (0.0, "")
     silent = motion_metrics(truth, truth, np.zeros(100, bool), period)
     assert silent["lag_s"] is None and "voice-active" in silent["lag_note"]
+
+
+def _walk() -> tuple[np.ndarray, float]:
+    """A talker walking 150 deg along the horizon at 10 deg/s for 15 s, frames every 0.192 s."""
+    period = 0.192
+    return _arc_truth(80, period, 10.0), period
+
+
+@pytest.mark.parametrize("where", ["start", "middle", "end", "off the path"])
+def test_a_tracker_that_points_one_way_has_no_defined_lag(where):
+    """One fixed direction fits some delay best by chance (the end of the range when it points
+    where the talker started); it does not follow the talker, so it has no lag, and the note says why."""
+    from doabench.metrics import motion_metrics
+
+    truth, period = _walk()
+    fixed = {"start": truth[0], "middle": truth[40], "end": truth[-1],
+             "off the path": angles_to_unit(np.radians(45.0), np.radians(30.0))}[where]
+    m = motion_metrics(np.tile(fixed, (len(truth), 1)), truth, np.ones(len(truth), bool), period)
+    assert m["lag_s"] is None, m
+    assert "not following the talker" in m["lag_note"] and m["lag_note"].endswith("no defined lag")
+    if where == "start":  # the truth of 2 s ago is nearest to where it points
+        assert "end of the 2 s search range" in m["lag_note"]
+    # its curve is nowhere below the best constant direction's error
+    assert min(m["lag_sse"]) >= 0.999 * m["lag_const_sse"] > 0
+
+
+def test_a_follower_keeps_its_lag_and_fixed_episodes_pool_to_none():
+    """A noisy tracker 0.5 s late still measures 0.5 s; three episodes of fixed directions pool to
+    no lag, in an episode's row and in the run's summary alike."""
+    from doabench.metrics import delayed_truth, lag_from_curves, motion_metrics
+    from doabench.runner.summary import lag_summary
+
+    truth, period = _walk()
+    late = delayed_truth(truth, np.array([0.5 / period]))[0]
+    late = np.where(np.isnan(late), truth[:1], late)
+    noisy = late + np.radians(1.0) * np.random.default_rng(0).standard_normal(late.shape)
+    follower = motion_metrics(noisy / np.linalg.norm(noisy, axis=1, keepdims=True), truth,
+                              np.ones(len(truth), bool), period)
+    assert follower["lag_s"] == pytest.approx(0.5) and "lag_note" not in follower
+    rows = [motion_metrics(np.tile(truth[i], (len(truth), 1)), truth, np.ones(len(truth), bool), period)
+            for i in (0, 40, 79)]
+    lag, note = lag_from_curves(rows)
+    assert lag is None and "not following the talker" in note
+    summary = lag_summary(rows)
+    assert summary["lag_s"] is None and "not following the talker" in summary["lag_note"]
+
+
+def test_the_best_constant_direction_is_the_spherical_mean():
+    """``lag_const_sse`` is the smallest error a fixed direction reaches: no direction of a fine
+    grid does better, and the spherical mean of an arc is its midpoint."""
+    from doabench.geometry import grid_unit_vectors
+    from doabench.metrics import best_constant_sse
+
+    truth, _ = _walk()
+    best = best_constant_sse(truth[None])[0]
+    grid = grid_unit_vectors(90, 180).reshape(-1, 3)
+    errors = np.degrees(great_circle_error(truth[None, :, :], grid[:, None, :]))  # (grid, frames)
+    assert np.square(errors).sum(1).min() >= 0.999 * best
+    midpoint = np.square(frame_errors_deg(np.tile(truth[40] + truth[39], (80, 1)), truth)).sum()
+    assert best == pytest.approx(midpoint, rel=1e-3)
+
+
+def test_curves_written_before_the_constant_direction_are_checked_by_the_range_only():
+    """Older results rows have no ``lag_const_sse``: their lag is the curve's minimum unless that
+    is the end of the search range."""
+    from doabench.metrics import LAG_MAX_S, LAG_STEP_S, lag_from_curves, lag_grid
+
+    d = len(lag_grid(LAG_MAX_S, LAG_STEP_S))
+    inside = {"lag_sse": [(k - 10) ** 2 + 1.0 for k in range(d)], "lag_frames": 8, "lag_speed": 20.0}
+    at_end = {"lag_sse": [float(d - k) for k in range(d)], "lag_frames": 8, "lag_speed": 20.0}
+    assert lag_from_curves([inside]) == (pytest.approx(0.5), "")
+    lag, note = lag_from_curves([at_end])
+    assert lag is None and "end of the 2 s search range" in note

@@ -150,3 +150,11 @@ def test_readme_commands_that_need_librispeech_say_so() -> None:
             speech = doabench.get_task_spec(task).params.get("speech") or {}
             if speech.get("corpus") == "librispeech":
                 assert "--librispeech" in line, line
+
+
+def test_readme_says_where_the_speech_and_the_weights_come_from() -> None:
+    text = (ROOT / "README.md").read_text()
+    for needed in ("DOABENCH_LIBRISPEECH", "doabench data download librispeech", "baselines/weights/",
+                   "docs/model-cards.md"):
+        assert needed in text, needed
+    assert (ROOT / "docs" / "model-cards.md").is_file() and any((ROOT / "baselines" / "weights").glob("*.safetensors"))

@@ -86,6 +86,41 @@ def test_cli_list_and_bad_ids(capsys):
     assert "key=value" in capsys.readouterr().err
 
 
+def test_list_trackers_gives_whole_descriptions(capsys):
+    """A description is its docstring's whole first paragraph, never its first line cut mid-sentence."""
+    from doabench.trackers.registry import available_trackers
+
+    assert main(["list", "trackers"]) == 0
+    lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines()}
+    trackers = available_trackers()
+    assert set(lines) == set(trackers)
+    for name, cls in trackers.items():
+        if cls.__module__.startswith(("doabench.", "doabench_baselines.")):  # not the tests' plug-ins
+            assert lines[name].rstrip().endswith((".", ".)")), lines[name]
+    assert lines["srp-kalman-cv"].endswith("a tracker that models motion (srp-kalman is a random walk and trails a "
+                                           "walking talker).")
+
+
+def _parsers(parser):
+    """``parser`` and every subcommand's parser below it, with their command names."""
+    import argparse
+
+    yield parser.prog, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _parsers(sub)
+
+
+def test_help_texts_print_a_percent_sign_once():
+    """argparse expands ``%%`` in an option's help but prints a description as written."""
+    from doabench.cli.main import build_parser
+
+    helps = {prog: parser.format_help() for prog, parser in _parsers(build_parser())}
+    assert len(helps) > 15 and not [prog for prog, text in helps.items() if "%%" in text]
+    assert "95% interval" in " ".join(helps["doabench compare"].split())
+
+
 def test_srp_kalman_smooths_outliers_on_the_grid():
     from doabench.arrays import get_array
 

@@ -58,3 +58,17 @@ def test_every_field_of_the_schema_is_documented() -> None:
     for section in ("task", "tracker", "features", "environment", "summary", "scoring"):
         for key in schema["properties"][section].get("properties", {}):
             assert f"`{section}.{key}`" in page, f"{section}.{key}"
+
+
+def test_the_best_constant_directions_error_is_optional_and_typed() -> None:
+    """Episode rows carry ``lag_const_sse`` (the lag's evidence that the estimates follow the
+    talker) since it was recorded; rows written before it still validate, a wrong type does not."""
+    old = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
+    assert all("lag_const_sse" not in row for row in old["episodes"])
+    validate_results(old)
+    new = copy.deepcopy(old)
+    new["episodes"][0]["lag_const_sse"] = 1234.5
+    validate_results(new)
+    new["episodes"][0]["lag_const_sse"] = "large"
+    with pytest.raises(jsonschema.ValidationError):
+        validate_results(new)

@@ -1,6 +1,7 @@
 """The documentation site in a real browser: `mkdocs build --strict`, then every page loaded in
 headless Chromium over a local HTTP server: no broken link or image, no console error, and the
-home page shows a leaderboard table and the RMSAE-against-T60 figure.
+home page shows a leaderboard table and the RMSAE-against-T60 figure; in a 1280 px window no
+table runs past the window's right edge.
 
 Needs the Debian `chromium` package (`.ci/run` installs it when missing); without it the test
 skips and says so. Chromium is driven through the DevTools protocol over a pipe
@@ -30,6 +31,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 BROWSERS = ("chromium", "chromium-browser", "google-chrome")
+WINDOW_WIDTH = 1280
 
 
 def _browser() -> str | None:
@@ -197,6 +199,10 @@ def test_every_page_loads_without_errors_or_broken_links(site: Path, server: str
         session = browser.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
         for method in ("Page.enable", "Runtime.enable", "Log.enable", "Network.enable"):
             browser.send(method, session=session)
+        # A 1280 px window (a laptop's): every table must end inside it, the leaderboards' last
+        # column (the lag) included.
+        browser.send("Emulation.setDeviceMetricsOverride", {"width": WINDOW_WIDTH, "height": 1600,
+                                                            "deviceScaleFactor": 1, "mobile": False}, session=session)
         for page in pages:
             url = server + page
             browser.events.clear()
@@ -209,6 +215,10 @@ def test_every_page_loads_without_errors_or_broken_links(site: Path, server: str
                   links: Array.from(document.querySelectorAll('a[href]')).map(a => a.href),
                   tables: Array.from(document.querySelectorAll('table')).map(t => t.innerText.slice(0, 300)),
                   images: Array.from(document.images).map(i => [i.src, i.naturalWidth]),
+                  window: document.documentElement.clientWidth,
+                  wide: Array.from(document.querySelectorAll('table'))
+                    .map(t => [t.getBoundingClientRect().right, t.rows.length ? t.rows[0].innerText : ''])
+                    .filter(([right]) => right > document.documentElement.clientWidth + 0.5),
                 })"""}, session=session)["result"]["value"])
             if page == "" and os.environ.get("DOABENCH_SITE_SCREENSHOT"):
                 shot = browser.send("Page.captureScreenshot", {"format": "png"}, session=session)["data"]
@@ -217,6 +227,9 @@ def test_every_page_loads_without_errors_or_broken_links(site: Path, server: str
                 Path(os.environ["DOABENCH_SITE_SCREENSHOT"]).write_bytes(base64.b64decode(shot))
             found = _errors([e for e in browser.events if e.get("sessionId") == session])
             found += [f"broken image: {src}" for src in state["broken"]]
+            assert state["window"] == WINDOW_WIDTH, state["window"]
+            found += [f"table ends at {right:.0f} px, beyond the {WINDOW_WIDTH} px window: "
+                      f"{' '.join(head.split())[:100]}" for right, head in state["wide"]]
             for link in state["links"]:
                 base, fragment = urldefrag(link)
                 if urlparse(link).netloc != urlparse(server).netloc:

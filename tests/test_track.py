@@ -148,6 +148,23 @@ def test_track_scores_against_the_truth_that_simulate_writes(scene_dir, tmp_path
     assert not (tmp_path / "x.csv").exists()
 
 
+def test_track_plot_keeps_its_legend_off_the_curves_and_names_the_polar_angle():
+    from doabench.cli.track import track_figure
+    from doabench.geometry import angles_to_unit
+    from test_plot_styles import _assert_legends_clear_of_axes
+
+    # Curves high on both panels (where a legend inside would sit), silent frames in the legend too.
+    times = np.arange(100) * 0.192
+    up = angles_to_unit(np.radians(np.full(100, 170.0)), np.radians(np.linspace(150, 179, 100)))
+    vad = np.arange(100) % 7 != 0
+    for truth in (None, up[::-1]):
+        fig = track_figure(times, up, vad, "rec.wav: srp-max:16x32 with a long title", truth)
+        _assert_legends_clear_of_axes(fig)
+        azimuth, elevation = fig.axes
+        assert "polar angle from zenith" in elevation.get_ylabel() and "azimuth" in azimuth.get_ylabel()
+        assert elevation.get_ylim() == (0, 180)
+
+
 # -- long recordings stream: block by block, same bytes as the offline computation --------------
 
 def _bursty_recording(path, seconds: float, fs: int = 16000, channels: int = 12, seed: int = 3) -> None:

@@ -28,6 +28,16 @@ MAX_TIME_DB = 40.0  # the RIR ends when the energy has decayed this much
 WALL_NAMES = ("x0", "x1", "y0", "y1", "z0", "z1")
 
 
+def diffuse_start(t60: float) -> float:
+    """``Tdiff`` in seconds for a reverberation time ``t60``: the end of the image-source part."""
+    return DIFFUSE_START_DB / 60.0 * t60
+
+
+def max_time(t60: float) -> float:
+    """``Tmax`` in seconds for a reverberation time ``t60``: the length of a room impulse response."""
+    return MAX_TIME_DB / 60.0 * t60
+
+
 def _as_floats(value, what: str, n: int) -> tuple[float, ...]:
     try:
         arr = np.asarray(value, dtype=np.float64).reshape(-1)
@@ -109,11 +119,11 @@ class Room:
 
     def diffuse_start(self) -> float:
         """``Tdiff`` in seconds: time of a 12 dB energy decay, ``0.2 * T60``."""
-        return DIFFUSE_START_DB / 60.0 * self.t60
+        return diffuse_start(self.t60)
 
     def max_time(self) -> float:
         """``Tmax`` in seconds: time of a 40 dB energy decay, ``(40 / 60) * T60``."""
-        return MAX_TIME_DB / 60.0 * self.t60
+        return max_time(self.t60)
 
     def contains(self, points) -> np.ndarray:
         """Points ``(..., 3)`` in room coordinates -> bool ``(...)``, True strictly inside

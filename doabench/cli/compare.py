@@ -12,9 +12,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Compare the first results file with each other one over the episodes both ran (same task, "
                     "task version and seeds): the difference of every summary metric (RMSAE all frames and "
                     "voice-active, MAE, median, p90, shares within 5-30°, azimuth MAE, tracking lag, RMSAE by "
-                    "angular speed, where the files carry them), pooled and per grid cell, with a 95%% interval "
+                    "angular speed, where the files carry them), pooled and per grid cell, with a 95% interval "
                     "from a paired bootstrap over episodes (stratified by cell) and a verdict: better, worse or "
-                    "no significant difference. Markdown on stdout.")
+                    "no significant difference; 'too few episodes' instead where fewer than --min-episodes paired "
+                    "episodes contribute to a line (column n). Markdown on stdout.")
     p.add_argument("results", nargs="+", metavar="RESULTS.json",
                    help="results files of one task: the first is compared with each of the others")
     p.add_argument("--csv", metavar="FILE", help="also write every row (pooled and per cell) as CSV")
@@ -32,6 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--by-seed", action="store_true",
                    help="pair the episodes of two tasks that render the same scenes (same scene seeds) differently, "
                         "e.g. sim-walk and sim-walk-pra (builtin against pyroomacoustics)")
+    p.add_argument("--min-episodes", type=int, default=5, metavar="N",
+                   help="paired episodes that must contribute to a line (frames of it in both runs) for a verdict; "
+                        "below it the line says 'too few episodes' (default 5)")
     p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
     p.set_defaults(func=main)
@@ -60,6 +64,8 @@ def main(args: argparse.Namespace) -> int:
     holds = _holds(args.hold)
     if args.resamples < 100:
         raise ConfigError(f"--resamples must be at least 100, got {args.resamples}")
+    if args.min_episodes < 2:  # one episode gives a bootstrap interval of no width
+        raise ConfigError(f"--min-episodes must be at least 2, got {args.min_episodes}")
     paths = [Path(p) for p in args.results]
     if len(paths) < 2 and not args.silence:
         raise InputError("compare needs two or more results files (one is enough with --silence)")
@@ -74,8 +80,8 @@ def main(args: argparse.Namespace) -> int:
     if not others and not args.silence:
         raise InputError(f"nothing to compare {first.path} with: give another results file of the same task")
     cmp._distinct_labels([first, *others])
-    comparisons = [cmp.compare(first, other, args.silence, holds, args.resamples, args.seed, by_seed=args.by_seed)
-                   for other in others]
+    comparisons = [cmp.compare(first, other, args.silence, holds, args.resamples, args.seed, by_seed=args.by_seed,
+                               min_episodes=args.min_episodes) for other in others]
     breakdowns = []
     if args.silence:
         if comparisons:  # each run over the episodes it shares with the first (all compared runs share them)

@@ -40,8 +40,9 @@ def format_info(info: dict) -> str:
         "arrays (first episode):",
     ]
     for path, a in sorted(info["arrays"].items()):
+        described = f"  [{a['units']}] {a['axes']}" if a.get("axes") else ""
         lines.append(f"  {path:<26} {str(tuple(a['shape'])):<18} {a['dtype']:<8} {_mb(a['stored_bytes'])}"
-                     f" {a['compression'] or ''}")
+                     f" {a['compression'] or ''}{described}".rstrip())
     versions = ", ".join(f"{k} {v}" for k, v in sorted(info["versions"].items()) if not k.startswith("simulator:"))
     lines.append(f"versions:  {versions}")
     shown = {k: v for k, v in cfg.items() if k != "task"}

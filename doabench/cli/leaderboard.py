@@ -12,9 +12,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "Output is deterministic: the same inputs give byte-identical files.")
     # Defaults under the git-ignored runs/, where `doabench run` writes by default: building a
     # leaderboard never rewrites the committed leaderboards/ unless asked to (make update-demo-results).
-    p.add_argument("--results", default="runs/results",
-                   help="folder of results JSON files (default: runs/results/, where doabench run writes; "
-                        "the committed ones: --results results)")
+    p.add_argument("--results", action=_Folders, default=["runs/results"], metavar="FOLDER",
+                   help="folder of results JSON files, repeatable: the folders are read together, and one "
+                        "configuration with files in two of them is refused (default: runs/results/, where "
+                        "doabench run writes; the committed ones: --results results)")
     p.add_argument("--out", default="runs/leaderboards",
                    help="output folder (default: runs/leaderboards/, git-ignored; the committed tables: "
                         "--out leaderboards)")
@@ -25,9 +26,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=main)
 
 
+class _Folders(argparse.Action):
+    """A repeatable folder option whose first use replaces the default (``append`` would add to it)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, value: object,
+                 option_string: str | None = None) -> None:
+        given = getattr(namespace, self.dest)
+        setattr(namespace, self.dest, (given if given is not self.default else []) + [value])
+
+
 def _command(args: argparse.Namespace) -> str:
     """The command line printed in the tables: the folders as given, so re-running it regenerates them."""
-    parts = ["--results", args.results, "--out", args.out]
+    parts = [part for folder in args.results for part in ("--results", folder)] + ["--out", args.out]
     for ref in args.reference or []:
         parts += ["--reference", ref]
     return "doabench leaderboard " + " ".join(shlex.quote(p) for p in parts)

@@ -1,12 +1,16 @@
-"""``doabench list tasks|trackers``."""
+"""``doabench list tasks|trackers|weights``."""
 from __future__ import annotations
 
 import argparse
+import inspect
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("list", help="list registered tasks or trackers")
-    p.add_argument("what", choices=["tasks", "trackers"])
+    p = sub.add_parser("list", help="list registered tasks, trackers or shipped weights",
+                       description="List the registered tasks, the trackers, or the shipped weights of the learned "
+                                   "trackers by name (--tracker-opt weights=NAME), with the default of each and "
+                                   "headline figures from the committed results.")
+    p.add_argument("what", choices=["tasks", "trackers", "weights"])
     p.set_defaults(func=main)
 
 
@@ -18,13 +22,47 @@ def main(args: argparse.Namespace) -> int:
         width = max(len(t) for t in tasks)
         for task_id, spec in tasks.items():
             print(f"{task_id:<{width}}  v{spec.version}  {spec.kind:<9} {spec.episodes:>6} ep  {spec.description}")
+    elif args.what == "weights":
+        list_weights()
     else:
         from doabench.trackers.registry import available_trackers
 
         trackers = available_trackers()
         width = max(len(t) for t in trackers)
         for name, cls in trackers.items():
-            doc = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+            doc = summary(cls.__doc__)
             kind = "causal " if cls.causal else "offline"
             print(f"{name:<{width}}  {kind}  {','.join(cls.features):<18} {doc}")
     return 0
+
+
+def summary(doc: str | None) -> str:
+    """A class's description for a listing: its docstring's first paragraph, whole (its first line
+    alone can stop mid-sentence), on one line, without reST's literal quotes."""
+    first = inspect.cleandoc(doc or "").split("\n\n")[0]
+    return " ".join(first.split()).replace("``", "")
+
+
+def _figure(headline: dict, task: str) -> str:
+    h = headline.get(task)
+    if not h:
+        return "-"
+    lag = "" if h.get("lag_s") is None else f", lag {h['lag_s']:.2f} s"
+    return f"{h['rmsae_all']:.2f}{lag}"
+
+
+def list_weights() -> None:
+    """One line per shipped weights file: tracker, name (``*``: the default), what it trained on and
+    its pooled RMSAE (all frames, deg) and lag on sim-grid, sim-walk and sim-turn."""
+    from doabench.trackers.registry import available_trackers
+
+    rows = [w for cls in available_trackers().values() for w in cls.shipped_weights()]
+    header = ("tracker", "name", "trained on", "sim-grid", "sim-walk", "sim-turn", "sha256")
+    table = [header] + [(w["tracker"], w["name"] + (" *" if w["default"] else ""), str(w.get("task") or "?"),
+                         *(_figure(w.get("headline") or {}, t) for t in ("sim-grid", "sim-walk", "sim-turn")),
+                         (w.get("sha256") or "?")[:12]) for w in rows]
+    widths = [max(len(r[i]) for r in table) for i in range(len(header))]
+    for r in table:
+        print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+    print("* the default (no weights option). Figures: pooled RMSAE over all frames [deg] and lag, from the "
+          "committed results (docs/models.md#weights-by-name); - no complete run. Use --tracker-opt weights=NAME.")

@@ -120,8 +120,22 @@ def build_distribution(args: argparse.Namespace):
         if not (math.isfinite(args.duration) and args.duration > 0):
             raise ConfigError(f"--duration must be a positive number of seconds, got {args.duration}")
         changes["duration_s"] = args.duration
-        changes["n_points"] = max(1, round(dist.n_points * args.duration / dist.duration_s))
+        # Bounded so that an absurd duration reaches the memory check (check_fits) as a number.
+        changes["n_points"] = max(1, round(min(dist.n_points * args.duration / dist.duration_s, 2.0**62)))
     return dist.replace(**changes) if changes else dist, source, args.array or array
+
+
+def memory_fields(args: argparse.Namespace) -> dict[str, str]:
+    """How the memory check (:func:`~doabench.acoustics.budget.check_fits`) names the scene's
+    fields: the flags given (``--duration`` also sets the trajectory's points), else the task's."""
+    from doabench.acoustics.budget import scene_fields
+
+    fields = scene_fields(f"task {args.task!r} scene" if args.task else "scene")
+    if args.t60 is not None:
+        fields["t60"] = "--t60"
+    if args.duration is not None:
+        fields.update(duration_s="--duration", n_points="--duration")
+    return fields
 
 
 def _task_episode(args: argparse.Namespace):
@@ -228,6 +242,7 @@ def _publish(tmp: Path, out: Path, force: bool) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from doabench._version import __version__
+    from doabench.acoustics.budget import check_fits
     from doabench.acoustics.render import render_scene
     from doabench.acoustics.scenes import sample_scene
     from doabench.acoustics.simulators import get_simulator
@@ -245,6 +260,7 @@ def main(args: argparse.Namespace) -> int:
             raise ConfigError(f"--seed must be >= 0, got {seed}")
         dist, source, array_name = build_distribution(args)
         array = get_array(array_name)
+        check_fits(dist, array.n_mics, memory_fields(args))  # before the scene is drawn
         scene = sample_scene(dist, seed, source, array=array)
     episode = render_scene(scene, source, array, simulator=simulator, device=args.device)
     meta = episode.metadata

@@ -31,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--resample", action="store_true", help="resample a recording at another rate (anti-aliased)")
     p.add_argument("--device", default=None)
     p.add_argument("--out", required=True, help="output CSV")
-    p.add_argument("--plot", help="also draw azimuth and elevation over time into this PNG/PDF")
+    p.add_argument("--plot", help="also draw azimuth and elevation (the polar angle from the zenith) over time into "
+                                  "this PNG/PDF, the legend right of the panels")
     p.add_argument("--truth", metavar="truth.csv",
                    help="score against a truth table (as `doabench simulate` writes: time_s, ..., x, y, z, vad per "
                         "frame; an optional valid column leaves frames with invalid truth unscored), as `doabench "
@@ -107,25 +108,29 @@ def score_line(path: str | Path, m: dict, planar: bool) -> str:
             + (f" ({m['lag_note']})" if m.get("lag_note") else "") + ("; " + "; ".join(notes) if notes else ""))
 
 
-def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad: np.ndarray, title: str,
-               truth: np.ndarray | None = None) -> None:
-    """Azimuth and elevation over time, silent frames shaded grey (in the legend), the truth
-    overlaid when given."""
+#: the y label of the elevation panel: doabench's elevation is the inclination from +z (the zenith)
+ELEVATION_LABEL = "elevation θ [deg]\n(polar angle from zenith)"
+AZIMUTH_LABEL = "azimuth φ [deg]"
+
+
+def track_figure(times: np.ndarray, directions: np.ndarray, vad: np.ndarray, title: str,
+                 truth: np.ndarray | None = None):
+    """The figure of :func:`plot_track` (tests inspect it): azimuth above elevation over time,
+    silent frames shaded grey, the legend right of the panels, clear of the curves."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
 
     from doabench.geometry import unit_to_angles
-    from doabench.results.files import atomic_path
-
-    from matplotlib.patches import Patch
+    from doabench.results.plots import legend_outside
 
     el, az = unit_to_angles(directions)
     true_angles = None if truth is None else unit_to_angles(truth)
     fig, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 4.5))
-    for i, (ax, values, label) in enumerate(((axes[0], np.degrees(az), "azimuth [deg]"),
-                                             (axes[1], np.degrees(el), "elevation [deg]"))):
+    for i, (ax, values, label) in enumerate(((axes[0], np.degrees(az), AZIMUTH_LABEL),
+                                             (axes[1], np.degrees(el), ELEVATION_LABEL))):
         if true_angles is not None:
             ax.plot(times, np.degrees(true_angles[1 - i]), "-", color="C3", lw=1.6, label="truth")
         ax.plot(times, values, ".-", lw=1, ms=3, color="C0", label="estimate")
@@ -136,13 +141,24 @@ def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad:
                 ax.axvspan(t - half, t + half, color="0.85", lw=0)
     handles, _ = axes[0].get_legend_handles_labels()
     if not np.all(vad):
-        handles.append(Patch(color="0.85", label="silent frames (no voice activity)"))
-    axes[0].legend(handles=handles, fontsize="small", loc="upper right", ncol=3)
+        handles.append(Patch(color="0.85", label="silent frames\n(no voice activity)"))
+    legend_outside(axes[0], handles=handles)
     axes[0].set_ylim(-180, 180)
     axes[1].set_ylim(0, 180)
     axes[1].set_xlabel("time [s]")
     axes[0].set_title(title)
     fig.tight_layout()
+    return fig
+
+
+def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad: np.ndarray, title: str,
+               truth: np.ndarray | None = None) -> None:
+    """Write :func:`track_figure` to ``path`` (its suffix names the format)."""
+    import matplotlib.pyplot as plt
+
+    from doabench.results.files import atomic_path
+
+    fig = track_figure(times, directions, vad, title, truth)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=Path(path).suffix.lstrip(".") or "png", dpi=120)
     plt.close(fig)
@@ -172,6 +188,10 @@ def main(args: argparse.Namespace) -> int:
                                      f"; a recording is tracked whole, run it again with: {command_line(args)}")
     # An untrained learned model is refused unless weights=random.
     tracker = make_checked_tracker(args.tracker, parse_options(args.tracker_opt))
+    from doabench.results.writer import weights_line
+
+    if tracker.weights_hash() or tracker.describe().get("trained") is False:
+        print(f"doabench track: {args.tracker}: {weights_line(tracker.describe())}", file=sys.stderr)
     from doabench.runner import recordings
     from doabench.trackers.base import resolve_delays
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from doabench.datasets.layout import EpisodeRecord, is_complete, write_episode, write_part  # noqa: F401
 from doabench.datasets.schema import (
-    COMPRESSIONS, EPISODES, SCHEMA, FeatureRequest, dumps, episode_name, feature_names, open_h5,
+    COMPRESSIONS, EPISODES, SCHEMA, FeatureRequest, describe_dataset, dumps, episode_name, feature_names, open_h5,
     parse_features, shard_indices,
 )
 from doabench.envs.registry import get_task_spec
@@ -446,7 +446,7 @@ def assemble(out: Path, folder: Path, indices: Sequence[int], config: dict[str, 
             for k, v in file_attributes(config, spec.to_dict(), feature_names(requests), len(indices), info).items():
                 f.attrs[k] = v
             # The episode indices this file is meant to hold (info reports complete / requested).
-            f.create_dataset("requested", data=np.asarray(indices, np.int64))
+            describe_dataset(f.create_dataset("requested", data=np.asarray(indices, np.int64)), "requested")
             eps = f.create_group(EPISODES)
             for i in indices:
                 name = episode_name(i)

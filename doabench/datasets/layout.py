@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from doabench.datasets.schema import EPISODES, dumps, episode_name
+from doabench.datasets.schema import EPISODES, SCENE_ATTR_UNITS, describe_dataset, dumps, episode_name
 from doabench.results.files import atomic_path
 
 # Arrays smaller than this many bytes are stored contiguous and uncompressed: filters cost more
@@ -87,16 +87,17 @@ def write_episode(parent, record: EpisodeRecord, compression: str = "gzip"):
     g = parent.create_group(name)
     for path, arr in record.arrays.items():
         arr = np.asarray(arr)
-        g.create_dataset(path, data=arr, **dataset_options(arr, compression))
+        describe_dataset(g.create_dataset(path, data=arr, **dataset_options(arr, compression)), path)
     scene_data, scene_attrs = scene_arrays(record.metadata)
     for path, arr in scene_data.items():
-        g.create_dataset(path, data=arr)
+        describe_dataset(g.create_dataset(path, data=arr), path)
     if scene_attrs:
         sg = g.require_group("scene")
         for k, v in scene_attrs.items():
             sg.attrs[k] = v
+        sg.attrs["units"] = dumps({k: SCENE_ATTR_UNITS.get(k, "") for k in scene_attrs})
     # Metadata can exceed the 64 kB limit of an HDF5 attribute (long trajectories): a string dataset.
-    g.create_dataset("metadata", data=dumps(record.metadata))
+    describe_dataset(g.create_dataset("metadata", data=dumps(record.metadata)), "metadata")
     for k, v in record.attrs.items():
         g.attrs[k] = v
     g.attrs["index"] = int(record.index)

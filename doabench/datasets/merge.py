@@ -16,7 +16,7 @@ import numpy as np
 from doabench.datasets.generate import SHARD_KEYS, config_difference, describe_difference, partial_path
 from doabench.datasets.layout import read_episode
 from doabench.datasets.reader import DatasetFile
-from doabench.datasets.schema import EPISODES, dumps, episode_name
+from doabench.datasets.schema import EPISODES, describe_dataset, dumps, episode_name
 from doabench.errors import InputError
 from doabench.results.files import atomic_path
 
@@ -96,7 +96,7 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path) -> dict[str, A
                 dst.attrs.update({"config": dumps(config), "n_requested": len(requested),
                                   "generation": dumps(generation),
                                   "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")})
-                dst.create_dataset("requested", data=np.asarray(requested, np.int64))
+                describe_dataset(dst.create_dataset("requested", data=np.asarray(requested, np.int64)), "requested")
                 eps = dst.create_group(EPISODES)
                 for i in sorted(owner):
                     verify_group(owner[i], i)

@@ -18,6 +18,11 @@ from doabench.features.kinds import MAP_KINDS, item_name, storage_path
 from doabench.framing import FrameSpec
 
 
+def _text(value: Any) -> str | None:
+    """An HDF5 string attribute as text (h5py may give bytes), None when absent."""
+    return value.decode() if isinstance(value, bytes) else None if value is None else str(value)
+
+
 def check_truth(truth: dict[str, np.ndarray], where: str) -> None:
     """Refuse truth that would score as NaN: non-numeric, non-finite, zero or misshapen directions,
     non-finite times, a VAD of another length."""
@@ -174,7 +179,9 @@ class DatasetFile:
                 if hasattr(obj, "dtype") and path != "metadata":
                     stored = obj.id.get_storage_size()
                     shapes[path] = {"shape": list(obj.shape), "dtype": str(obj.dtype), "stored_bytes": int(stored),
-                                    "compression": obj.compression}
+                                    "compression": obj.compression,
+                                    # None in files written before the datasets described themselves
+                                    "units": _text(obj.attrs.get("units")), "axes": _text(obj.attrs.get("axes"))}
 
             g.visititems(visit)
         return {

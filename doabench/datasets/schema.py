@@ -17,6 +17,9 @@ Layout (full description with shapes and dtypes in docs/hdf5-schema.md)::
         vad                         (T,)         bool
         scene/...                   room_dims, array_position, trajectory, ... (simulated tasks)
         metadata                    JSON string: the episode's full metadata
+
+Every dataset but a plug-in's feature also carries ``units``, ``axes`` and ``description``
+attributes (:data:`DATASET_ATTRS`).
 """
 from __future__ import annotations
 
@@ -36,6 +39,84 @@ FEATURES = FEATURES_GROUP
 TRUTH_KEYS = ("directions", "elevation", "azimuth", "times")
 DEFAULT_FEATURES = "srp:16x32"
 COMPRESSIONS = ("gzip", "lzf", "none")
+
+
+# What each dataset of an episode group holds, stored as its attributes ``units`` ("1":
+# dimensionless), ``axes`` (the axes of its shape, in order) and ``description`` (docs/hdf5-schema.md
+# lists them). Keys are paths inside an episode group; a map's grid suffix (features/srp_16x32) is
+# looked up without it. Angles are radians here; CSV columns and results JSON use degrees and say so.
+_FRAMES = "frames of the task's window and hop (root attribute frames)"
+DATASET_ATTRS: dict[str, dict[str, str]] = {
+    "features/srp": {"units": "1", "axes": "(frame, elevation, azimuth)",
+                     "description": "SRP-PHAT map per frame on the equiangular grid (elevation rows over [0, pi], or "
+                                    "[0, pi/2] for a planar array, ends included; azimuth columns -pi + 2 pi j / "
+                                    "columns), mean removed and divided by its maximum; zero in silent frames"},
+    "features/srp_max": {"units": "1", "axes": "(frame, [elevation, azimuth])",
+                         "description": "where each SRP-PHAT map has its maximum, as fractions of the grid span: "
+                                        "elevation row / (rows - 1), azimuth (phi + pi) / (2 pi); zero in silent "
+                                        "frames. Two grid coordinates per frame, not the three components of "
+                                        "truth/directions"},
+    "features/gcc": {"units": "1", "axes": "(frame, microphone pair, lag)",
+                     "description": "GCC-PHAT of every microphone pair (the array's pair order), lags -max_lag.."
+                                    "max_lag samples; zero in silent frames"},
+    "features/spectrogram": {"units": "1", "axes": "(frame, channel, frequency bin)",
+                             "description": "channels 0..M-1: each microphone's magnitude divided by its maximum "
+                                            "over frequency; M..2M-1: phase / pi; the DC bin dropped; zero in "
+                                            "silent frames"},
+    "audio": {"units": "1", "axes": "(microphone, sample)",
+              "description": "the microphone signals as simulated or recorded (linear amplitude, float32)"},
+    "sample_directions": {"units": "1", "axes": "(sample, [x, y, z])",
+                          "description": "truth per sample: unit vector from the array centre to the source, array "
+                                         "frame"},
+    "sample_vad": {"units": "1", "axes": "(sample,)", "description": "voice activity per sample"},
+    "array_positions": {"units": "m", "axes": "(microphone, [x, y, z])",
+                        "description": "this episode's microphone positions, array frame"},
+    "truth/directions": {"units": "1", "axes": "(frame, [x, y, z])",
+                         "description": f"truth per frame ({_FRAMES}): the mean of the window's per-sample "
+                                        "directions, renormalised; unit vector from the array centre to the "
+                                        "source, array frame"},
+    "truth/elevation": {"units": "rad", "axes": "(frame,)",
+                        "description": "polar angle of truth/directions from the array's +z axis (the zenith), in "
+                                       "[0, pi]"},
+    "truth/azimuth": {"units": "rad", "axes": "(frame,)",
+                      "description": "atan2(y, x) of truth/directions, in [-pi, pi]"},
+    "truth/times": {"units": "s", "axes": "(frame,)", "description": "the frames' window centres"},
+    "vad": {"units": "1", "axes": "(frame,)",
+            "description": "voice activity per frame: more than 2/3 of the window's samples active"},
+    "scene/room_dims": {"units": "m", "axes": "([x, y, z],)", "description": "the shoebox room's size"},
+    "scene/abs_weights": {"units": "1", "axes": "([x0, x1, y0, y1, z0, z1],)",
+                          "description": "relative absorption of the six walls (the T60 sets their scale)"},
+    "scene/array_position": {"units": "m", "axes": "([x, y, z],)",
+                             "description": "array centre, room coordinates (at the first trajectory point for a "
+                                            "moving array)"},
+    "scene/mic_positions": {"units": "m", "axes": "(microphone, [x, y, z])",
+                            "description": "the microphones, array frame"},
+    "scene/trajectory": {"units": "m", "axes": "(trajectory point, [x, y, z])",
+                         "description": "source positions, room coordinates: point i sounds during segment i of "
+                                        "the signal cut into as many equal segments as there are points (the "
+                                        "simulator's time grid, e.g. 156 points per 20 s), so their count differs "
+                                        "from the frames'; truth/directions averages the resulting per-sample "
+                                        "directions over each window"},
+    "metadata": {"units": "", "axes": "()", "description": "JSON: the episode's full metadata"},
+    "requested": {"units": "1", "axes": "(episode,)", "description": "the task episode indices this file is "
+                                                                     "meant to hold"},
+}
+#: Units of the scalar attributes of an episode's ``scene`` group (stored as its ``units`` attribute, JSON).
+SCENE_ATTR_UNITS = {"t60": "s", "snr_db": "dB", "duration_s": "s", "fs": "Hz", "seed": "", "static": "",
+                    "array_name": ""}
+_GRID_SUFFIX = re.compile(r"_\d+x\d+$")
+
+
+def dataset_attrs(path: str) -> dict[str, str]:
+    """``units``, ``axes`` and ``description`` of the dataset at ``path`` in an episode group
+    (or ``requested`` at the root); empty for a path the schema does not describe (a plug-in's feature)."""
+    return dict(DATASET_ATTRS.get(_GRID_SUFFIX.sub("", path), {}))
+
+
+def describe_dataset(dataset, path: str) -> None:
+    """Write :func:`dataset_attrs` onto an h5py ``dataset`` (the stored numbers are untouched)."""
+    for key, value in dataset_attrs(path).items():
+        dataset.attrs[key] = value
 
 
 def episode_name(index: int) -> str:

@@ -26,6 +26,7 @@ class SimulatedEpisodes:
     headline = "pooled"
 
     def __init__(self, spec: TaskSpec, **options: Any) -> None:
+        from doabench.acoustics.budget import check_fits, scene_fields
         from doabench.acoustics.simulators import get_simulator
 
         opts = SimulatedOptions(**options)
@@ -50,6 +51,8 @@ class SimulatedEpisodes:
         else:
             cell = spec.params.get("cell", {}).get("index")
             self._cells = [(cell, self._distribution(spec, scene_overrides), spec)]
+        for _, dist, cell_spec in self._cells:  # before any episode is drawn, simulated or written
+            check_fits(dist, self.array.n_mics, scene_fields(f"task {cell_spec.id!r} scene"))
         self.scene_overrides = dict(scene_overrides or {})
         self._per_cell = spec.episodes // len(self._cells)
 

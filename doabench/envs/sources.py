@@ -100,7 +100,7 @@ def task_identity(spec: TaskSpec, options: Mapping[str, Any]) -> dict[str, Any]:
     factory = task_kind(spec.kind, spec.id)
     given = {k: v for k, v in options.items() if v is not None}
     declared = getattr(factory, "Options", None)
-    if declared is None or not dataclasses.is_dataclass(declared):
+    if not isinstance(declared, type) or not dataclasses.is_dataclass(declared):
         taken = kind_options(factory) if not _takes_any_option(factory) else set(given)
         return {k: given[k] for k in sorted(given) if k in taken}
     names = {f.name for f in dataclasses.fields(declared)}

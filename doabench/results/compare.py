@@ -13,10 +13,17 @@ episodes as the cell holds, with replacement, and the same episodes for both run
 difference whose interval excludes 0 is called better or worse; otherwise "no significant
 difference". Per cell, the bootstrap draws from that cell only.
 
+A verdict needs enough episodes behind it: every line says how many paired episodes contribute
+to it (``n``: those with frames of it in both runs, e.g. frames in a speed band, or a moving
+talker for the lag), and a line with fewer than ``MIN_EPISODES`` (5) gets "too few episodes"
+instead of better, worse or a tie. With one contributing episode every resample holds the same
+value and the interval has no width (``+1.35 [+1.35, +1.35]``), which is no evidence at all.
+
 Every statistic is computed from the per-episode rows of the results files and is exactly the
 pooled value of the leaderboards (a pooled RMS is ``sqrt(sum n_i rms_i^2 / sum n_i)``; a mean over
 non-silent frames weights episodes by their non-silent frames; the lag minimises the pooled lag
-curve, :func:`doabench.metrics.lag_from_curves`). Median and 90th percentile, and the breakdown by
+curve and is undefined where the estimates do not follow the talker,
+:func:`doabench.metrics.lag_from_curves`). Median and 90th percentile, and the breakdown by
 frames since the last voice-active frame (``silence``), need the per-frame estimates (results
 written without ``--no-frames``).
 """
@@ -34,9 +41,9 @@ import numpy as np
 
 from doabench.errors import InputError
 from doabench.results.files import load_results
-from doabench.results.labels import configuration_label
-from doabench.results.writer import results_task_options
-from doabench.metrics import LAG_MAX_S, LAG_STEP_S, STATIC_SPEED_DEG_S, THRESHOLDS_DEG, lag_grid, score_frames
+from doabench.results.identity import results_task_options
+from doabench.results.labels import run_label
+from doabench.metrics import LAG_MAX_S, LAG_STEP_S, THRESHOLDS_DEG, follows, lag_grid, moves, score_frames
 
 N_RESAMPLES = 2000
 LEVEL = 0.95
@@ -44,6 +51,9 @@ LEVEL = 0.95
 SILENCE_BUCKETS = ((1, 3), (3, 6), (6, 11), (11, 21), (21, 31), (31, 41), (41, None))
 #: verdict words (for the run named first, against the other)
 BETTER, WORSE, TIE = "better", "worse", "no significant difference"
+#: what a line backed by fewer than ``MIN_EPISODES`` contributing episodes says instead of a verdict
+TOO_FEW = "too few episodes"
+MIN_EPISODES = 5
 
 
 # -- loading and pairing ------------------------------------------------------------------------------------
@@ -71,14 +81,6 @@ def load_run(path: str | Path) -> Run:
     if not data.get("episodes"):
         raise InputError(f"{path} has no per-episode rows to pair")
     return Run(path, data, run_label(data))
-
-
-def run_label(results: dict[str, Any]) -> str:
-    """The tracker id, with its options when it had any (``cross3d:16x32 (weights=v3.safetensors)``)
-    and its task options (``[backend=pyroomacoustics]``)."""
-    tracker = results.get("tracker") or {}
-    name = str(tracker.get("id") or tracker.get("name") or "?")
-    return configuration_label(name, tracker.get("options"), results_task_options(results))
 
 
 def _distinct_labels(runs: Sequence[Run]) -> None:
@@ -193,7 +195,8 @@ def _span(rows: Sequence[dict[str, Any]]) -> str:
 @dataclass(frozen=True)
 class Metric:
     """A compared statistic: ``stats(rows, frames) -> (episodes, k)`` per-episode sums, and
-    ``value(sums (B, k)) -> (B,)`` the statistic of episodes whose sums were added up."""
+    ``value(sums (B, k)) -> (B,)`` the statistic of episodes whose sums were added up. The last
+    column of the sums is positive exactly for the episodes that contribute (their frame count)."""
 
     key: str
     label: str
@@ -239,24 +242,33 @@ def _mean_stats(metric: str, count: str | None) -> Callable:
     return stats
 
 
+def _count_stats(count: str) -> Callable:
+    """Frame quantiles are no function of sums: their one column counts each episode's frames."""
+    def stats(rows: list[dict[str, Any]], frames: Any = None) -> np.ndarray:
+        return np.nan_to_num(np.array([_num(r, count) for r in rows])).reshape(-1, 1)
+    return stats
+
+
 def _lag_stats(rows: list[dict[str, Any]], frames: Any = None) -> np.ndarray:
-    """Per episode its lag curve (summed squared error per delay) where its truth moves, zeros
-    where not, and in the last column 1 for a moving episode (the pooled lag needs one)."""
+    """Per episode where its truth moves: its lag curve (summed squared error per delay), the best
+    constant direction's error (``lag_const_sse``), 1 where that was not recorded (older files),
+    and in the last column 1 (the pooled lag needs a moving episode); zeros where it does not move."""
     d = len(lag_grid(LAG_MAX_S, LAG_STEP_S))
-    out = np.zeros((len(rows), d + 1))
+    out = np.zeros((len(rows), d + 3))
     for i, r in enumerate(rows):
-        curve, speed = r.get("lag_sse"), r.get("lag_speed")
-        if curve is not None and len(curve) == d and r.get("lag_frames", 0) > 0 and speed is not None \
-                and speed >= STATIC_SPEED_DEG_S:
+        curve, const = r.get("lag_sse"), r.get("lag_const_sse")
+        if curve is not None and len(curve) == d and moves(r):
             out[i, :d] = curve
-            out[i, d] = 1.0
+            out[i, d:] = (0.0, 1.0, 1.0) if const is None else (const, 0.0, 1.0)
     return out
 
 
 def _lag_value(sums: np.ndarray) -> np.ndarray:
-    grid = lag_grid(LAG_MAX_S, LAG_STEP_S)
-    lag = grid[np.argmin(sums[:, :-1], axis=1)]
-    return np.where(sums[:, -1] > 0, lag, np.nan)
+    """The pooled lag of the summed curves, NaN where no episode moves or the estimates do not
+    follow the talker (:func:`doabench.metrics.follows`), as :func:`doabench.metrics.lag_from_curves` decides."""
+    curve, const, unrecorded, moving = sums[:, :-3], sums[:, -3], sums[:, -2], sums[:, -1]
+    lag = lag_grid(LAG_MAX_S, LAG_STEP_S)[np.argmin(curve, axis=1)]
+    return np.where((moving > 0) & follows(curve, np.where(unrecorded > 0, np.nan, const)), lag, np.nan)
 
 
 def _band_stats(label: str) -> Callable:
@@ -353,9 +365,9 @@ def summary_metrics(rows_a: Sequence[dict[str, Any]], rows_b: Sequence[dict[str,
     if all(_has(r, "mae") for r in (rows_a, rows_b)):
         out.append(Metric("mae", "MAE voice-active", "deg", False, _mean_stats("mae", "n_nonsilent"), _ratio))
     if frames:
-        out += [Metric("median", "median error voice-active", "deg", False, lambda r, f: np.zeros((len(r), 0)),
+        out += [Metric("median", "median error voice-active", "deg", False, _count_stats("n_nonsilent"),
                        _ratio, quantile=0.5, frames=True),
-                Metric("p90", "90th percentile voice-active", "deg", False, lambda r, f: np.zeros((len(r), 0)),
+                Metric("p90", "90th percentile voice-active", "deg", False, _count_stats("n_nonsilent"),
                        _ratio, quantile=0.9, frames=True)]
     for th in THRESHOLDS_DEG:
         if all(_has(r, f"within_{th}") for r in (rows_a, rows_b)):
@@ -430,40 +442,51 @@ class Row:
     diff: float
     low: float
     high: float
+    #: paired episodes that contribute to the line in both runs (frames of it), and how many a verdict needs
+    n_contributing: int
+    min_episodes: int = MIN_EPISODES
+
+    @property
+    def enough(self) -> bool:
+        """Enough contributing episodes for a verdict (module docstring)."""
+        return self.n_contributing >= self.min_episodes
 
     @property
     def verdict(self) -> str:
+        if not self.enough:
+            return TOO_FEW
         if not (math.isfinite(self.low) and math.isfinite(self.high)) or self.low <= 0 <= self.high:
             return TIE
         lower = self.high < 0
         return BETTER if lower != self.metric.higher_is_better else WORSE
 
 
-def _values(metric: Metric, rows: list[dict[str, Any]], frames: list[dict[str, Any]] | None,
-            counts: np.ndarray) -> np.ndarray:
-    """The statistic of ``rows`` for each row of ``counts`` ``(B, episodes)``."""
+def _values(metric: Metric, sums: np.ndarray, frames: list[dict[str, Any]] | None, counts: np.ndarray) -> np.ndarray:
+    """The statistic for each row of ``counts`` ``(B, episodes)`` from the episodes' ``sums``
+    (``metric.stats``) or, for a frame quantile, their ``frames``."""
     if metric.quantile is not None:
         values, owner = _voiced_errors(frames or [])
         return _weighted_quantile(values, owner, counts, metric.quantile)
-    return metric.value(counts @ metric.stats(rows, frames))
+    return metric.value(counts @ sums)
 
 
 def compare_scope(p: Pairing, metric: Metric, positions: np.ndarray, strata: Sequence[np.ndarray], scope: str,
-                  n_resamples: int, seed: int) -> Row:
+                  n_resamples: int, seed: int, min_episodes: int = MIN_EPISODES) -> Row:
     """The paired difference ``a - b`` of ``metric`` over the episodes at ``positions``."""
     rows_a = [p.rows_a[i] for i in positions]
     rows_b = [p.rows_b[i] for i in positions]
     fa = [p.frames_a[i] for i in positions] if p.frames_a is not None else None
     fb = [p.frames_b[i] for i in positions] if p.frames_b is not None else None
+    sums_a, sums_b = metric.stats(rows_a, fa), metric.stats(rows_b, fb)
     ones = np.ones((1, len(positions)))
     if metric.quantile is not None:  # the exact quantile, as the leaderboards compute it
         assert fa is not None and fb is not None, "quantile metrics are compared only with per-frame estimates"
         point = [float(np.percentile(_voiced_errors(f)[0], 100 * metric.quantile))
                  if _voiced_errors(f)[0].size else float("nan") for f in (fa, fb)]
     else:
-        point = [float(_values(metric, r, f, ones)[0]) for r, f in ((rows_a, fa), (rows_b, fb))]
+        point = [float(_values(metric, s, f, ones)[0]) for s, f in ((sums_a, fa), (sums_b, fb))]
     counts = bootstrap_counts(strata, len(positions), n_resamples, seed)
-    diffs = _values(metric, rows_a, fa, counts) - _values(metric, rows_b, fb, counts)
+    diffs = _values(metric, sums_a, fa, counts) - _values(metric, sums_b, fb, counts)
     diffs = diffs[np.isfinite(diffs)]
     low, high = (np.percentile(diffs, [(1 - LEVEL) / 2 * 100, (1 + LEVEL) / 2 * 100]) if diffs.size
                  else (float("nan"), float("nan")))
@@ -471,7 +494,8 @@ def compare_scope(p: Pairing, metric: Metric, positions: np.ndarray, strata: Seq
     cell = scope != "pooled"
     return Row(scope, first.get("t60") if cell else None, first.get("snr") if cell else None, len(positions), metric,
                metric.scale * point[0], metric.scale * point[1], metric.scale * (point[0] - point[1]),
-               metric.scale * float(low), metric.scale * float(high))
+               metric.scale * float(low), metric.scale * float(high),
+               n_contributing=int(np.sum((sums_a[:, -1] > 0) & (sums_b[:, -1] > 0))), min_episodes=min_episodes)
 
 
 @dataclass
@@ -485,9 +509,11 @@ class Comparison:
 
 
 def compare(a: Run, b: Run, silence: bool = False, holds: Sequence[int] = (), n_resamples: int = N_RESAMPLES,
-            seed: int = 0, only: Sequence[str] | None = None, by_seed: bool = False) -> Comparison:
+            seed: int = 0, only: Sequence[str] | None = None, by_seed: bool = False,
+            min_episodes: int = MIN_EPISODES) -> Comparison:
     """Pair ``a`` and ``b`` (by scene seed across two tasks with ``by_seed``) and compare every
-    metric both carry (or those named in ``only``), pooled and per cell."""
+    metric both carry (or those named in ``only``), pooled and per cell; a line with fewer than
+    ``min_episodes`` contributing episodes gets no verdict."""
     p = pair(a, b, by_seed)
     frames = p.frames_a is not None and p.frames_b is not None
     notes = []
@@ -505,11 +531,11 @@ def compare(a: Run, b: Run, silence: bool = False, holds: Sequence[int] = (), n_
         metrics = [m for m in metrics if m.key in only]
     everything = np.arange(p.n)
     strata = list(p.cells.values()) or [everything]
-    pooled = [compare_scope(p, m, everything, strata, "pooled", n_resamples, seed) for m in metrics]
+    pooled = [compare_scope(p, m, everything, strata, "pooled", n_resamples, seed, min_episodes) for m in metrics]
     cells = []
     for cell, positions in sorted(p.cells.items(), key=lambda kv: (_f(p.rows_a[kv[1][0]].get("t60")),
                                                                    _f(p.rows_a[kv[1][0]].get("snr")), kv[0])):
-        cells += [compare_scope(p, m, positions, [np.arange(len(positions))], cell, n_resamples, seed)
+        cells += [compare_scope(p, m, positions, [np.arange(len(positions))], cell, n_resamples, seed, min_episodes)
                   for m in metrics]
     return Comparison(p, pooled, cells, notes)
 
@@ -575,8 +601,10 @@ def _fmt(x: float, unit: str, signed: bool = False) -> str:
 
 
 def _diff_text(row: Row) -> str:
+    """The difference and its interval; without the interval where too few episodes back it (an
+    interval of one or two episodes reads as a certainty it is not)."""
     u = row.metric.unit
-    interval = "" if not (math.isfinite(row.low) and math.isfinite(row.high)) else \
+    interval = "" if not (row.enough and math.isfinite(row.low) and math.isfinite(row.high)) else \
         f" [{_fmt(row.low, u, True)}, {_fmt(row.high, u, True)}]"
     return _fmt(row.diff, u, True) + interval
 
@@ -592,12 +620,15 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
 
 
 def cell_summary(c: Comparison, metric: str = "rmsae_all") -> str:
-    """``better in 3, worse in 12, no significant difference in 3 of 18 cells`` (empty without cells)."""
+    """``better in 3, worse in 12, no significant difference in 3 of 18 cells`` (``, too few episodes
+    in 2`` before ``of`` where some cells have too few; empty without cells)."""
     rows = [r for r in c.cells if r.metric.key == metric]
     if not rows:
         return ""
-    n = {v: sum(r.verdict == v for r in rows) for v in (BETTER, WORSE, TIE)}
-    return f"better in {n[BETTER]}, worse in {n[WORSE]}, no significant difference in {n[TIE]} of {len(rows)} cells"
+    n = {v: sum(r.verdict == v for r in rows) for v in (BETTER, WORSE, TIE, TOO_FEW)}
+    too_few = f", {TOO_FEW} in {n[TOO_FEW]}" if n[TOO_FEW] else ""
+    return (f"better in {n[BETTER]}, worse in {n[WORSE]}, no significant difference in {n[TIE]}{too_few} "
+            f"of {len(rows)} cells")
 
 
 def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DEFAULT_CELL_METRICS,
@@ -611,7 +642,10 @@ def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DE
         lines += [f"Paired over the episodes both runs ran (same task version and seeds). Difference = first run − "
                   f"other run; brackets: 95 % interval of a paired bootstrap over episodes ({n_resamples} resamples, "
                   "stratified by grid cell). Verdict for the first run: *better* or *worse* when the interval "
-                  "excludes 0 (lower is better, except the shares within N°), else *no significant difference*.", ""]
+                  "excludes 0 (lower is better, except the shares within N°), else *no significant difference*; "
+                  f"*{TOO_FEW}* (no verdict, no interval) where fewer than {_min_episodes(comparisons)} paired "
+                  "episodes contribute to the line. n: the paired episodes that contribute (frames of that speed "
+                  "band, a moving talker for the lag).", ""]
     for c in comparisons:
         p = c.pairing
         a, b = p.a, p.b
@@ -626,9 +660,9 @@ def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DE
             summary = cell_summary(c)
             lines += [f"**RMSAE all frames: {_diff_text(headline)} deg, {headline.verdict}**"
                       + (f" ({summary}: RMSAE all frames)" if summary else "") + ".", ""]
-        lines += _table(["metric", f"`{a.label}`", f"`{b.label}`", "difference [95% CI]", "verdict"],
-                        [[_metric_text(r.metric), _fmt(r.a, r.metric.unit), _fmt(r.b, r.metric.unit), _diff_text(r),
-                          r.verdict] for r in c.pooled])
+        lines += _table(["metric", "n", f"`{a.label}`", f"`{b.label}`", "difference [95% CI]", "verdict"],
+                        [[_metric_text(r.metric), str(r.n_contributing), _fmt(r.a, r.metric.unit),
+                          _fmt(r.b, r.metric.unit), _diff_text(r), r.verdict] for r in c.pooled])
         shown = [key for key in cell_metrics if any(r.metric.key == key for r in c.cells)]
         if shown:
             by_cell: dict[str, dict[str, Row]] = {}
@@ -647,7 +681,8 @@ def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DE
                     cell = metrics.get(key)
                     row += ["—", "—"] if cell is None else [
                         f"{_fmt(cell.a, cell.metric.unit)} / {_fmt(cell.b, cell.metric.unit)}",
-                        f"{_diff_text(cell)}, {cell.verdict}"]
+                        f"{_diff_text(cell)}, {cell.verdict}"
+                        + (f" (n {cell.n_contributing})" if cell.n_contributing != cell.n_episodes else "")]
                 table.append(row)
             lines += ["", "### Per cell", ""] + _table(header, table)
         for note in c.notes:
@@ -670,9 +705,14 @@ def _g(x: Any) -> str:
     return "" if x is None else f"{float(x):g}"
 
 
+def _min_episodes(comparisons: Sequence[Comparison]) -> int:
+    """The contributing episodes a verdict needed in these comparisons."""
+    return next((r.min_episodes for c in comparisons for r in c.pooled + c.cells), MIN_EPISODES)
+
+
 CSV_COLUMNS = ("first_file", "other_file", "first", "other", "task", "task_version", "scope", "t60", "snr",
-               "n_episodes", "metric", "unit", "first_value", "other_value", "difference", "ci95_low", "ci95_high",
-               "verdict")
+               "n_episodes", "n_contributing", "metric", "unit", "first_value", "other_value", "difference",
+               "ci95_low", "ci95_high", "verdict")
 
 
 def csv_text(comparisons: Sequence[Comparison]) -> str:
@@ -687,6 +727,7 @@ def csv_text(comparisons: Sequence[Comparison]) -> str:
             writer.writerow({"first_file": str(p.a.path), "other_file": str(p.b.path), "first": p.a.label,
                              "other": p.b.label, "task": p.a.task.get("id"), "task_version": p.a.task.get("version"),
                              "scope": r.scope, "t60": _g(r.t60), "snr": _g(r.snr), "n_episodes": r.n_episodes,
+                             "n_contributing": r.n_contributing,
                              "metric": r.metric.key, "unit": r.metric.unit, "first_value": num(r.a),
                              "other_value": num(r.b), "difference": num(r.diff), "ci95_low": num(r.low),
                              "ci95_high": num(r.high), "verdict": r.verdict})
@@ -694,6 +735,20 @@ def csv_text(comparisons: Sequence[Comparison]) -> str:
 
 
 VERDICT_COLOURS = {BETTER: "tab:green", WORSE: "tab:red", TIE: "0.45"}
+#: a line without a verdict: a hollow light-grey marker, no interval
+NO_VERDICT_COLOUR = "0.65"
+
+
+def _forest_point(ax: Any, r: Row, y: float, marker: str) -> None:
+    """One line of the forest plot: the difference with its interval in its verdict's colour, or
+    a hollow marker alone where too few episodes back it (no verdict, no interval to trust)."""
+    if not r.enough:
+        ax.plot([r.diff], [y], marker=marker, linestyle="none", markersize=5, markerfacecolor="none",
+                color=NO_VERDICT_COLOUR)
+        return
+    colour = VERDICT_COLOURS[r.verdict]
+    ax.errorbar([r.diff], [y], xerr=[[r.diff - r.low], [r.high - r.diff]], fmt=marker, color=colour, ecolor=colour,
+                capsize=2, markersize=5)
 
 
 def forest_figure(comparisons: Sequence[Comparison], metrics: Sequence[str] = ("rmsae_all", "rmsae_nonsilent")):
@@ -720,10 +775,7 @@ def forest_figure(comparisons: Sequence[Comparison], metrics: Sequence[str] = ("
             for r in c.pooled + c.cells:
                 if r.metric.key != key:
                     continue
-                y = scopes.index(r.scope) + offset
-                colour = VERDICT_COLOURS[r.verdict]
-                ax.errorbar([r.diff], [y], xerr=[[r.diff - r.low], [r.high - r.diff]], fmt=markers[j % len(markers)],
-                            color=colour, ecolor=colour, capsize=2, markersize=5)
+                _forest_point(ax, r, scopes.index(r.scope) + offset, markers[j % len(markers)])
         ax.axvline(0.0, color="k", linewidth=0.8)
         ax.axhline(0.5, color="0.8", linewidth=0.8)
         m = next(r.metric for c in comparisons for r in c.pooled if r.metric.key == key)
@@ -740,9 +792,10 @@ def forest_figure(comparisons: Sequence[Comparison], metrics: Sequence[str] = ("
                    for j in range(k)]
         axes[0][-1].legend(handles, [f"vs {c.pairing.b.label}" for c in comparisons], fontsize="small",
                            loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    too_few = any(not r.enough for c in comparisons for r in c.pooled + c.cells if r.metric.key in metrics)
     fig.suptitle(f"{first.label} minus {'each other run' if k > 1 else comparisons[0].pairing.b.label} on "
                  f"{first.task.get('id')} (95% paired bootstrap; green better, red worse, grey no significant "
-                 "difference)", fontsize="medium")
+                 f"difference{'; hollow: ' + TOO_FEW if too_few else ''})", fontsize="medium")
     fig.tight_layout()
     return fig
 

@@ -23,9 +23,9 @@ from typing import Any, Sequence
 from doabench.envs.sources import task_kind
 from doabench.errors import ConfigError
 from doabench.results.distribution import IN, training_distribution
-from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, canonical_id, collect, coverage, display_path,
+from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, coverage, display_path,
                                       load_references, load_runs, recording_mean)
-from doabench.results.identity import results_task_options, results_weights_name
+from doabench.results.identity import canonical_id, results_task_options, results_weights_name
 from doabench.trackers.registry import available_trackers
 
 PUBLISHED = "published"

@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from doabench.errors import InputError
-from doabench.results.identity import canonical_id
 from doabench.results.labels import run_label
 from doabench.results.schema import results_problem
 

@@ -2,7 +2,9 @@
 
 ``results_schema()`` is the schema as a dict; ``validate_results(results)`` checks a results
 dictionary (or a loaded file) against it with ``jsonschema`` (a test dependency; install it with
-``pip install jsonschema`` to validate in your own code). docs/results-format.md documents the fields.
+``pip install jsonschema`` to validate in your own code). ``results_problem(data)`` says, without
+``jsonschema``, why a loaded JSON file is not a results file the leaderboards can read (the same
+answer whatever is installed). docs/results-format.md documents the fields.
 """
 from __future__ import annotations
 
@@ -10,9 +12,14 @@ import functools
 import json
 import math
 from importlib import resources
-from typing import Any
+from typing import Any, Sequence
 
 SCHEMA_FILE = "results-1.schema.json"
+#: the sections the leaderboards read, checked by :func:`results_problem`
+LEADERBOARD_SECTIONS = ("task", "tracker", "summary", "environment")
+_JSON_TYPES: dict[str, tuple[type, ...]] = {"string": (str,), "integer": (int,), "number": (int, float),
+                                            "boolean": (bool,), "object": (dict,), "array": (list,),
+                                            "null": (type(None),)}
 
 
 @functools.lru_cache(maxsize=1)
@@ -44,3 +51,46 @@ def validate_results(results: Any) -> None:
 
     data = _nan_to_none(json.loads(to_json(results, indent=None)))  # numpy values -> JSON types, as written
     jsonschema.validate(data, results_schema(), cls=jsonschema.Draft202012Validator)
+
+
+def results_problem(data: Any, sections: Sequence[str] = LEADERBOARD_SECTIONS) -> str | None:
+    """Why ``data`` (a loaded JSON file) is not a results file of this schema, or None: its
+    ``schema`` field, then each of ``sections`` against its part of the JSON Schema, one level
+    deep (the fields it requires and their JSON types). Needs no ``jsonschema``."""
+    if not isinstance(data, dict):
+        return "not a JSON object, so not a doabench results file"
+    properties = results_schema()["properties"]
+    wanted = properties["schema"]["const"]
+    if "schema" not in data:
+        return 'no "schema" field: not a doabench results file'
+    found = data["schema"]
+    if not (isinstance(found, str) and found.startswith(wanted.rsplit("/", 1)[0] + "/")):
+        return f'"schema" is {json.dumps(found)}: not a doabench results file'
+    if found != wanted:
+        return f"results schema {found!r}; this doabench reads {wanted!r}"
+    for section in sections:
+        problem = _section_problem(section, data.get(section), properties[section])
+        if problem:
+            return problem
+    return None
+
+
+def _section_problem(section: str, value: Any, schema: dict[str, Any]) -> str | None:
+    """What a section lacks or holds of the wrong type, by the schema's ``required`` and ``type``."""
+    if not isinstance(value, dict):
+        return f"no {section!r} section (the results schema requires one)"
+    for key in schema.get("required", ()):
+        if key not in value:
+            return f"{section}.{key} is missing (the results schema requires it)"
+        types = (schema.get("properties", {}).get(key) or {}).get("type")
+        names = [types] if isinstance(types, str) else list(types or ())
+        if names and not any(_is_type(value[key], name) for name in names):
+            return f"{section}.{key} is {json.dumps(value[key])} (the results schema wants type {' or '.join(names)})"
+    return None
+
+
+def _is_type(value: Any, name: str) -> bool:
+    """``value`` is of the JSON type ``name`` (true and false are no numbers, NaN is a number)."""
+    if isinstance(value, bool) and name in ("integer", "number"):
+        return False
+    return isinstance(value, _JSON_TYPES.get(name, (object,)))

@@ -20,7 +20,7 @@ from doabench.errors import NotFoundError
 from doabench.framing import FrameSpec
 from doabench.training.cache import TrajectoryCache
 from doabench.training.data import CachedItems, DatasetItems, NetworkInputs, SimulatedItems, ValidationItems, collate
-from doabench.training.pipeline import cache_folder, ensure_cache, scene_distribution, speech_for_split
+from doabench.training.pipeline import cache_folder, check_memory, ensure_cache, scene_distribution, speech_for_split
 from doabench.training.protocol import training_observations
 from doabench.training.recipes import Recipe
 
@@ -107,6 +107,8 @@ class EpochData:
         self.train_cache_dir, self.val_cache_dir = train_cache, val_cache
         self.base_seed = int(spec.base_seed) + int(recipe.seed)
         self._simulation: tuple[Any, Any, Any] | None = None
+        if options.dataset is None:  # the scenes are simulated: refused here if they cannot fit
+            check_memory(spec, recipe)
 
     def data_device(self) -> torch.device:
         """Where simulation and features run: the training device when the training process does
