@@ -60,8 +60,10 @@ def per_item_costs(tracker: str, librispeech: str, n_items: int) -> dict[str, fl
     return {"simulation": sim_s / n_items, "features": feat_s / n_items}
 
 
-def step_cost(resolution: str, precision: str, compiled: bool, batch: int, repeats: int = 3) -> float:
-    """CPU seconds per trajectory of one Adam step of Cross3D on a batch of random maps."""
+def step_cost(resolution: str, precision: str, compiled: bool, batch: int, repeats: int = 3, threads: int = 1) -> float:
+    """CPU seconds per trajectory of one Adam step of Cross3D on a batch of random maps; with
+    ``threads`` > 1, wall-clock seconds with that many torch threads (what the step takes when the
+    training process has the cores)."""
     from baselines.cross3d import Cross3D
 
     n_theta, n_phi = (int(v) for v in resolution.split("x"))
@@ -83,12 +85,17 @@ def step_cost(resolution: str, precision: str, compiled: bool, batch: int, repea
         loss.backward()
         opt.step()
 
-    step()  # warm-up (and compilation)
-    step()
-    t0 = time.process_time()
-    for _ in range(repeats):
+    clock = time.process_time if threads == 1 else time.perf_counter
+    torch.set_num_threads(threads)
+    try:
+        step()  # warm-up (and compilation)
         step()
-    return (time.process_time() - t0) / repeats / batch
+        t0 = clock()
+        for _ in range(repeats):
+            step()
+        return (clock() - t0) / repeats / batch
+    finally:
+        torch.set_num_threads(1)
 
 
 def tracker_costs(tracker: str, librispeech: str, n_items: int, compiled: bool = True,
@@ -187,6 +194,8 @@ def main() -> None:
     ap.add_argument("--e2e-items", type=int, default=60, help="trajectories per epoch of the end-to-end run")
     ap.add_argument("--e2e-threads", type=int, default=None,
                     help="torch threads of the end-to-end run's training process (default: train's, 1 beside workers)")
+    ap.add_argument("--step-threads", type=int, default=1,
+                    help="also time the compiled bf16 step with this many torch threads (wall-clock s)")
     ap.add_argument("--layers", nargs="*", default=[], metavar="RES",
                     help="also time each convolution of Cross3D at these resolutions (forward + backward per trajectory)")
     ap.add_argument("--trackers", nargs="*", default=[],
@@ -223,6 +232,10 @@ def main() -> None:
         for precision, compiled, label in (("fp32", False, "float32"), ("bf16", False, "bf16 autocast"),
                                            ("bf16", True, "bf16 autocast, compiled, channels-last")):
             print(f"| {res} | {label} | {step_cost(res, precision, compiled, args.batch):.3f} |", flush=True)
+        if args.step_threads > 1:
+            wall = step_cost(res, "bf16", True, args.batch, threads=args.step_threads)
+            print(f"| {res} | bf16 autocast, compiled, channels-last, {args.step_threads} threads (wall s) | {wall:.3f} |",
+                  flush=True)
     for res in args.layers:
         print(f"| cross3d:{res} convolution (bf16, channels-last, forward + backward) | CPU s per trajectory |")
         print("|---|---|")

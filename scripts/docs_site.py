@@ -568,7 +568,7 @@ def model_cards(root: Path = ROOT) -> str:
 
 
 def _card_title(tracker: str, file_name: str) -> str:
-    """``\`cross3d:16x32\`, weights \`moving\` (default)``: the card's heading and index entry."""
+    """The heading and index entry of a card: ``cross3d:16x32``, weights ``moving`` (default)."""
     default = " (default)" if _default_weights(tracker) == file_name else ""
     return f"`{tracker}`, weights `{_weights_name(file_name) or file_name}`{default}"
 
