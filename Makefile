@@ -13,7 +13,7 @@ TORCH_PIN ?= torch==2.13.0
 TORCH_INDEX_URL ?=
 DEMO_OUT ?= runs/demo
 
-.PHONY: setup demo test update-demo-results bench clean
+.PHONY: setup demo test test-fast update-demo-results bench clean
 
 setup: $(STAMP)
 
@@ -32,6 +32,11 @@ demo: setup
 
 test: setup
 	$(BIN)/python -m pytest
+
+# A quick loop while editing: every test but the slow ones (tests/conftest.py, SLOW_TESTS). `make test`
+# stays the README's and CI's command and runs them all.
+test-fast: setup
+	$(BIN)/python -m pytest -m "not slow"
 
 # The explicit command that changes the committed demo results (and the leaderboards built from them).
 # Only from a clean tree: the results record the commit they were made with, which must be the code.

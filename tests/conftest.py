@@ -71,3 +71,36 @@ def _validate_written_results(monkeypatch):
 
     monkeypatch.setattr(writer, "write_json", checked)
     yield
+
+
+# The slow tests (several seconds each: subprocesses that are signalled or run the demo, Ray, mypy,
+# the site in Chromium, git, spawned vector environments, full-length streaming), by node-id
+# prefix. `make test` (the README's and CI's command) runs everything; `make test-fast` leaves
+# these out for a quick loop while editing (`pytest -m "not slow"`).
+SLOW_TESTS = (
+    "tests/test_interrupts.py",
+    "tests/test_scaleout.py",
+    "tests/test_site_browser.py",
+    "tests/test_quickstart.py",
+    "tests/test_types.py",
+    "tests/test_commit_run_state.py",
+    "tests/test_train_queue.py",
+    "tests/test_docs.py::test_generated_pages_are_current",
+    "tests/test_docs.py::test_mkdocs",
+    "tests/test_track.py::test_streamed_",
+    "tests/test_outputs.py::test_full_disk_",
+    "tests/test_outputs.py::test_out_to_standard_output_",
+    "tests/test_vector_env.py::test_async_vector_env_",
+    "tests/test_datasets.py::test_sigkill_mid_run_",
+    "tests/test_datasets.py::test_two_shards_merged_",
+    "tests/test_run.py::test_check_env_passes_for_every_simulated_task[sim-walk-pra",
+    "tests/test_readme_commands.py::test_demo_writes_only_under_an_ignored_folder",
+    "tests/test_extending.py",
+    "tests/test_weights_names.py::test_the_catalog_is_what_the_rule_gives",
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.nodeid.startswith(SLOW_TESTS):
+            item.add_marker(pytest.mark.slow)

@@ -158,3 +158,17 @@ def test_readme_says_where_the_speech_and_the_weights_come_from() -> None:
                    "docs/model-cards.md"):
         assert needed in text, needed
     assert (ROOT / "docs" / "model-cards.md").is_file() and any((ROOT / "baselines" / "weights").glob("*.safetensors"))
+
+
+def test_the_quick_loop_leaves_out_only_the_listed_slow_tests_and_make_test_runs_all() -> None:
+    """`make test-fast` deselects the slow tests (tests/conftest.py SLOW_TESTS); `make test`, the README's
+    and CI's command, selects nothing out; every listed prefix names a test file that exists."""
+    from conftest import SLOW_TESTS
+
+    makefile = (ROOT / "Makefile").read_text()
+    test_rule = makefile.split("\ntest: setup\n", 1)[1].split("\n\n", 1)[0]
+    fast_rule = makefile.split("\ntest-fast: setup\n", 1)[1].split("\n\n", 1)[0]
+    assert "-m pytest" in test_rule and " -m " not in test_rule.replace("python -m pytest", "")
+    assert '-m "not slow"' in fast_rule
+    for prefix in SLOW_TESTS:
+        assert (ROOT / prefix.split("::", 1)[0]).is_file(), prefix
