@@ -29,7 +29,7 @@ import numpy as np
 
 import doabench
 from doabench.errors import ConfigError, DoabenchError, InputError, NotFoundError
-from doabench.trackers import parse_resolution
+from doabench.trackers import parse_resolution, resolution_text
 
 if TYPE_CHECKING:  # torch is imported where tensors are handled: `doabench list trackers` needs none
     import torch
@@ -57,8 +57,6 @@ def sha256_file(path: str | Path) -> str:
     return digest.hexdigest()
 
 
-def resolution_text(resolution: tuple[int, int] | None) -> str | None:
-    return None if resolution is None else "%dx%d" % tuple(resolution)
 
 
 def make_metadata(

@@ -25,6 +25,7 @@ import time
 
 import torch
 
+from doabench.geometry import resolution_text
 from doabench_baselines.cross3d import Cross3D
 from doabench_baselines.streaming import StreamingRunner
 
@@ -60,7 +61,7 @@ def measure(resolution: tuple[int, int], threads: int, frames: int, warmup: int,
         recompute.append(time.process_time() - c)
     wall.sort()
     return {
-        "resolution": "%dx%d" % resolution,
+        "resolution": resolution_text(resolution),
         "device": device,
         "threads": threads,
         "wall_median_ms": 1e3 * statistics.median(wall),

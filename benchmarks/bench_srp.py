@@ -25,6 +25,7 @@ import torch
 
 from doabench.results.provenance import cpu_name
 from doabench.arrays import get_array
+from doabench.geometry import resolution_text
 from doabench.features import SRPPHAT
 from doabench.features import functional as F
 from doabench.framing import FrameSpec
@@ -100,7 +101,7 @@ def main() -> None:
     print("-" * len(header))
     rows = []
     for res in RESOLUTIONS:
-        row = {"res": "%dx%d" % res}
+        row = {"res": resolution_text(res)}
         maps = {}
         for mode in ("nearest", "exact"):
             srp = SRPPHAT(array, res, spec, mode)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import TYPE_CHECKING, TypeGuard, Union, overload
+from typing import TYPE_CHECKING, Sequence, TypeGuard, Union, overload
 
 import numpy as np
 
@@ -159,6 +159,15 @@ def wrap_angle(a: np.ndarray) -> np.ndarray: ...
 def wrap_angle(a: ArrayLike) -> ArrayLike:
     """Wrap radians to ``[-pi, pi)``."""
     return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+@overload
+def resolution_text(resolution: Sequence[int]) -> str: ...
+@overload
+def resolution_text(resolution: None) -> None: ...
+def resolution_text(resolution: Sequence[int] | None) -> str | None:
+    """``(16, 32)`` -> ``"16x32"`` (the inverse of :func:`parse_resolution`); None stays None."""
+    return None if resolution is None else f"{int(resolution[0])}x{int(resolution[1])}"
 
 
 def parse_resolution(text: str) -> tuple[int, int]:

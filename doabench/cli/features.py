@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from doabench.geometry import resolution_text
 from doabench.errors import ConfigError, NotFoundError
 from doabench.features.kinds import EXTRACTOR_KINDS, MAP_KINDS
 from doabench.results.files import atomic_path, write_text
@@ -66,7 +67,7 @@ def _sidecar(args, extractor, result, sr: int, resampled: bool) -> dict:
         n_theta, n_phi = extractor.resolution
         el, az = grid_angles(n_theta, n_phi, planar=extractor.array.planar)
         meta.update(
-            resolution="%dx%d" % extractor.resolution,
+            resolution=resolution_text(extractor.resolution),
             delays=extractor.mode,
             elevations_deg=np.degrees(el).round(6).tolist(),
             azimuths_deg=np.degrees(az).round(6).tolist(),

@@ -27,7 +27,7 @@ from typing import Any, Callable, Iterable, Literal, NamedTuple, Sequence
 
 from doabench.errors import ConfigError
 from doabench.framing import FrameSpec
-from doabench.geometry import parse_resolution
+from doabench.geometry import parse_resolution, resolution_text
 
 #: The SRP grid when nothing asks for another one.
 DEFAULT_RESOLUTION = (16, 32)
@@ -171,11 +171,6 @@ def check_kinds(kinds: Iterable[str]) -> tuple[str, ...]:
     if unknown:
         raise ConfigError(f"unknown feature kind(s) {unknown}; choose from {', '.join(observation_kinds())}")
     return kinds
-
-
-def resolution_text(resolution: Sequence[int]) -> str:
-    """``(16, 32)`` -> ``"16x32"``."""
-    return f"{resolution[0]}x{resolution[1]}"
 
 
 def item_name(kind: str, resolution: Sequence[int] | str | None = None) -> str:

@@ -12,7 +12,8 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Sequence, cast
 
 from doabench.errors import ConfigError
-from doabench.features.kinds import DEFAULT_RESOLUTION, DELAY_MODES, check_kinds, resolution_text
+from doabench.features.kinds import DEFAULT_RESOLUTION, DELAY_MODES, check_kinds
+from doabench.geometry import resolution_text
 from doabench.framing import FrameSpec
 from doabench.geometry import parse_resolution
 

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike
 
+from doabench.geometry import resolution_text
 from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError, InputError
 from doabench.features import functional as F
@@ -396,7 +397,7 @@ class FeatureExtractor(_Transform):
             "c": self.c,
         }
         if self.srp is not None:
-            d.update(resolution="%dx%d" % self.resolution, delays=self.mode)
+            d.update(resolution=resolution_text(self.resolution), delays=self.mode)
         if self.gcc is not None:
             d["max_lag"] = self.gcc.max_lag
         if "spectrogram" in self.kinds:

@@ -50,6 +50,13 @@ _DESCRIPTOR = re.compile(r"^/(proc/(self|\d+)|dev)/fd/\d+$")
 _TEXT_ERRNO = re.compile(r"(?:errno = |os error |\[Errno )(\d+)")
 
 
+def file_stem(text: object, fallback: str = "") -> str:
+    """``text`` as a file name part that is safe on every filesystem: runs of characters other than
+    letters, digits, ``.``, ``+`` and ``-`` become ``_`` (``cross3d:16x32`` -> ``cross3d_16x32``,
+    ``file:data.h5`` -> ``file_data.h5``); ``fallback`` where nothing is left."""
+    return re.sub(r"[^A-Za-z0-9.+-]+", "_", str(text)).strip("_") or fallback
+
+
 def current_umask() -> int:
     """The process umask (read without changing it where /proc allows, else set and restored)."""
     try:

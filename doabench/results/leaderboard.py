@@ -16,7 +16,6 @@ import csv
 import io
 import json
 import math
-import re
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -25,6 +24,7 @@ from doabench.errors import ConfigError
 from doabench.results.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, coverage, display_path,
                                       load_references, load_runs, recording_mean)
+from doabench.results.files import file_stem
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
 from doabench.trackers.registry import available_trackers
 
@@ -66,7 +66,7 @@ def _csv_num(x: Any) -> str:
 
 def safe_name(task_id: str) -> str:
     """File name stem of a task's table: ``sim-grid``, ``file_data.h5`` for ``file:data.h5``."""
-    return re.sub(r"[^A-Za-z0-9.+-]+", "_", task_id).strip("_") or "task"
+    return file_stem(task_id, "task")
 
 
 # -- provenance ---------------------------------------------------------------------------------------

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 from pathlib import Path
 from typing import Any, Mapping
 
 import pandas as pd
 
 from doabench.errors import InputError
-from doabench.results.files import atomic_path, write_json
+from doabench.results.files import atomic_path, file_stem, write_json
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
 from doabench.results.labels import run_label
 
@@ -46,8 +45,7 @@ def results_stem(task_id: str, tracker_id: str, options: Mapping[str, Any] | Non
     """File stem for a run, safe on every filesystem: ``sim-demo__srp-max_32x64`` for the default
     configuration, ``sim-demo__srp-kalman__1a2b3c4d`` with tracker options, exact delays or task
     options (``--backend``, ``--vad``, ...: :func:`doabench.envs.sources.task_identity`)."""
-    safe = lambda s: re.sub(r"[^A-Za-z0-9.+-]+", "_", s).strip("_")  # noqa: E731
-    return f"{safe(task_id)}__{safe(tracker_id)}" + config_suffix(options, delays, weights_hash, task_options)
+    return f"{file_stem(task_id)}__{file_stem(tracker_id)}" + config_suffix(options, delays, weights_hash, task_options)
 
 
 def configuration(task_id: str, task_version: Any, tracker_id: str, options: Mapping[str, Any] | None,
@@ -132,8 +130,7 @@ def alias_files(results: Mapping[str, Any], out_dir: str | Path) -> list[Path]:
     name starts with the task and the tracker's registered name are read."""
     target = results_path(results, out_dir)
     tracker = results.get("tracker") or {}
-    safe = lambda s: re.sub(r"[^A-Za-z0-9.+-]+", "_", str(s)).strip("_")  # noqa: E731
-    prefix = f"{safe(results['task']['id'])}__{safe(tracker.get('name') or tracker.get('id'))}"
+    prefix = f"{file_stem(results['task']['id'])}__{file_stem(tracker.get('name') or tracker.get('id'))}"
     want = {**results_configuration(results), "tracker": canonical_id(dict(results))}
     found = []
     for path in sorted(Path(out_dir).glob(f"{prefix}*.json")):

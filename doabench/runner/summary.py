@@ -7,6 +7,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from doabench.geometry import resolution_text
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
 from doabench.envs.spec import TaskSpec
@@ -104,7 +105,7 @@ def build_results(spec: TaskSpec, tracker: Tracker, tracker_text: str, tracker_o
         "tracker": {"id": tracker_text, **tracker.describe(), "options": tracker_options or {},
                     **({"untrained": True} if getattr(tracker, "trained", True) is False else {})},
         "causal": bool(tracker.causal),
-        "features": {"kinds": list(env.features), "resolution": "%dx%d" % env.resolution, "delays": delays,
+        "features": {"kinds": list(env.features), "resolution": resolution_text(env.resolution), "delays": delays,
                      "frame": env.frame_spec.to_dict()},
         "environment": provenance,
         "summary": summary,

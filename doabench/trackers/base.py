@@ -38,6 +38,7 @@ from typing import Any, ClassVar, Mapping, Sequence, TypedDict
 
 import numpy as np
 
+from doabench.geometry import resolution_text
 from doabench.arrays import MicArray
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
@@ -161,7 +162,7 @@ class Tracker:
             "spec": self.spec,
             "causal": self.causal,
             "features": list(self.features),
-            "resolution": None if self.resolution is None else "%dx%d" % self.resolution,
+            "resolution": resolution_text(self.resolution),
             "resolution_in_id": bool(self.resolution_in_id),
             "parameters": self.parameter_count(),
             "receptive_field_frames": self.receptive_field_frames,

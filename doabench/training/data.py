@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from doabench.geometry import resolution_text
 from doabench.acoustics.trajectories import sample_directions
 from doabench.envs.sources import episode_seed
 from doabench.errors import ConfigError
@@ -168,7 +169,7 @@ class DatasetItems(Dataset):
                  epoch: int, n: int) -> None:
         from doabench.datasets.torch_dataset import EpisodeDataset
 
-        res = None if resolution is None else "%dx%d" % tuple(resolution)
+        res = resolution_text(resolution)
         self.kinds = kinds
         names = item_names(kinds, res)
         self.dataset = EpisodeDataset(path, features=names)

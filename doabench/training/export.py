@@ -7,6 +7,7 @@ from typing import Any
 
 import torch
 
+from doabench.geometry import resolution_text
 from doabench.errors import ConfigError
 from doabench.training import checkpoint as ckpt
 from doabench.training.losses import describe_loss
@@ -24,7 +25,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
     row = next((h for h in history if h["epoch"] == epoch), history[-1] if history else {})
     meta = {
         "tracker": tracker_id or state["tracker"],
-        "resolution": None if tracker.resolution is None else "%dx%d" % tuple(tracker.resolution),
+        "resolution": resolution_text(tracker.resolution),
         "array": spec.array,
         "features": list(tracker.features),
         "frame": tracker.frame_spec.to_dict(),
