@@ -1,17 +1,17 @@
 #!/usr/bin/env bash
-# Maintainers: at the end of a working session, commit the state of every unfinished training run.
-# Long runs outlast a working day, so their state is committed and resumed later. Waits for the running `doabench train` to finish its current
+# Maintainers: before the machine is needed back, commit the state of every unfinished training run.
+# Long runs outlast the time a machine is free, so their state is committed and resumed later. Waits for the running `doabench train` to finish its current
 # epoch (--now: do not wait; the epoch in progress is then redone on resume), stops it, compacts
 # each unfinished run's checkpoint (Adam moments and best weights in bfloat16, about 40 % smaller:
 # `doabench train --compact`) and commits training-runs/ (and baselines/weights/ when the queue
-# exported something). The next session resumes with scripts/train_queue.sh.
+# exported something). scripts/train_queue.sh (or scripts/train_in_background.sh) resumes them.
 #
 #   scripts/commit_run_state.sh          # wait for the epoch boundary (at most --max-wait seconds, default 900)
 #   scripts/commit_run_state.sh --now
 #
 # Budget: run states may add at most RUN_STATE_BUDGET_MB (default 240: 150 for the paper-recipe
 # queue, which used 140 of them, and 100 more for the moving-talker runs) to the repository in all (every committed checkpoint stays in the history). A run whose compacted
-# checkpoint would take the total over it is left out of the commit entirely (a later session
+# checkpoint would take the total over it is left out of the commit entirely (a later run
 # continues it from its last committed state, or from scratch) unless --force is given. Only
 # training processes of this checkout (working directory here) are stopped.
 set -euo pipefail
@@ -86,4 +86,4 @@ git add training-runs
 for run in ${left_out[@]+"${left_out[@]}"}; do git reset -q -- "$run"; done
 [ -d baselines/weights ] && git add baselines/weights
 summary=$(for r in training-runs/*/log.csv; do printf '%s epoch %s\n' "$(basename "$(dirname "$r")")" "$(tail -1 "$r" | cut -d, -f1)"; done | paste -sd, - | sed 's/,/, /g')
-git commit -m "training-runs: run state at the end of a session ($summary)" || echo "nothing to commit"
+git commit -m "training-runs: run state at a stop ($summary)" || echo "nothing to commit"

@@ -8,16 +8,17 @@
 # baselines/weights/<weights>.safetensors (SHA256SUMS updated), its checkpoint is deleted
 # (log.csv, loss.png and config.json stay as the record) and training-runs/<name>/exported.txt
 # says so. Stop it at any time (Ctrl-C, kill) and run it again to continue where it stopped;
-# commit training-runs/ (and baselines/weights/) before a session ends.
+# commit training-runs/ (and baselines/weights/) before the machine is needed back
+# (scripts/commit_run_state.sh).
 #
 # Runs whose state is too large to commit mid-run (the 1D CNNs: 70-110 MB compact, against the
-# 150 MB that run states may add to the repository in all) must finish within the session that
-# starts them. With QUEUE_DEADLINE (Unix time the session's training must stop by) such an entry
+# 150 MB that run states may add to the repository in all) must finish within the run of the queue
+# that starts them. With QUEUE_DEADLINE (Unix time by which the training must stop) such an entry
 # is started only when its estimated hours fit before the deadline; otherwise it is deferred to a
-# later session and the queue goes on with the entries that may span sessions. Without
+# later run of the queue, which goes on with the entries that may be stopped and resumed. Without
 # QUEUE_DEADLINE every entry runs in order.
 #
-#   QUEUE_DEADLINE=$(( $(date +%s) + 165 * 60 )) nice -n 10 scripts/train_queue.sh   # a 3-hour session
+#   QUEUE_DEADLINE=$(( $(date +%s) + 165 * 60 )) nice -n 10 scripts/train_queue.sh   # free for 3 hours
 #   DOABENCH_LIBRISPEECH=/data/LibriSpeech nice -n 10 scripts/train_queue.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -29,12 +30,12 @@ if [ -n "$DEADLINE" ] && ! [[ "$DEADLINE" =~ ^[0-9]+$ ]]; then
     echo "QUEUE_DEADLINE must be a Unix time in seconds (e.g. \$(( \$(date +%s) + 165 * 60 ))), got '$DEADLINE'" >&2
     exit 2
 fi
-# tracker, preset, run name, weights file name, stored dtype of the exported weights, whole-session
+# tracker, preset, run name, weights file name, stored dtype of the exported weights, uninterrupted
 # hours, torch threads of the training process, then any extra `doabench train` recipe options.
 # Stored dtype: float16 for the 1D CNNs (11.3 M and 6.9 M parameters: 23 and 14 MB in the
 # repository instead of 45 and 28; loaded back as float32, outputs within 0.01 deg, see
-# docs/results.md), float32 for the rest. Whole-session hours: 0 for a run whose
-# state is small enough to commit at every session's end, else the hours it needs from start to
+# docs/results.md), float32 for the rest. Uninterrupted hours: 0 for a run whose
+# state is small enough to commit at every stop, else the hours it needs from start to
 # export. Threads (kept when a run resumes, unlike the recipe options): 1 where the data workers
 # are the bottleneck (they use the other core); 2 for spec-cnn2d, whose model step takes ~5x its
 # item (0.90 vs 0.19 CPU s) so its one worker idles most of the time: 2 threads made that step
@@ -45,7 +46,7 @@ fi
 # margin). spec-cnn2d and seldnet are step-bound (0.90 and 0.26 CPU-s) and train on T60 0-0.3 s
 # (the trainer's default for them) for 18 epochs, 10,530 trajectories (the paper's >= 10,000;
 # second phase from epoch 9); their states (1.9 M and 0.1 M parameters) may be committed at every
-# session's end.
+# stop.
 # A threads field "B/F" means B threads where the CPU trains in bf16 (native bf16: the data workers
 # are the bottleneck) and F where it trains in fp32 (no native bf16, e.g. an AVX2-only AMD EPYC):
 # there Cross3D 16x32's fp32 step costs ~2.1 CPU-s per trajectory against ~0.8 for its item, so with
@@ -109,7 +110,7 @@ for entry in "${QUEUE[@]}"; do
     elif [ -n "$DEADLINE" ] && [ "$whole_hours" != 0 ]; then
         need=$(awk -v h="$whole_hours" 'BEGIN { printf "%d", h * 3600 }')
         if [ $(( $(date +%s) + need )) -gt "$DEADLINE" ]; then
-            echo "== $(date -u +%FT%TZ) $model deferred: it needs ${whole_hours} h in one session, $(( (DEADLINE - $(date +%s)) / 60 )) min left"
+            echo "== $(date -u +%FT%TZ) $model deferred: it needs ${whole_hours} h without a stop, $(( (DEADLINE - $(date +%s)) / 60 )) min left"
             deferred+=("$model")
             continue
         fi
@@ -131,7 +132,7 @@ for entry in "${QUEUE[@]}"; do
         "$(date -u +%FT%TZ)" > "$out/exported.txt"
 done
 if [ ${#deferred[@]} -gt 0 ]; then
-    echo "== deferred to a session that starts with them: ${deferred[*]}"
+    echo "== deferred to a later run of the queue with time for them: ${deferred[*]}"
     exit 0
 fi
 echo "== the queue is done: run scripts/evaluate_paper.sh (docs/results.md)"

@@ -32,3 +32,13 @@ def test_no_session_or_issue_numbers_anywhere() -> None:
             if PATTERN.search(line):
                 hits.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()[:120]}")
     assert not hits, "say what the software does instead of naming a session or issue:\n" + "\n".join(hits)
+
+
+def test_the_long_training_tools_describe_what_they_do_not_when() -> None:
+    """The scripts and pages that run a long training resumably speak of stops and deadlines (what
+    they do), not of working sessions (when someone ran them)."""
+    paths = [*sorted((ROOT / "scripts").glob("*.sh")), ROOT / "docs" / "training.md", ROOT / "training-runs" / "README.md"]
+    hits = [f"{p.relative_to(ROOT)}:{n}" for p in paths
+            for n, line in enumerate(p.read_text().splitlines(), start=1) if re.search(r"\bsessions?\b", line, re.I)]
+    assert not hits, hits
+    assert not (ROOT / "scripts" / "session_start.sh").exists() and (ROOT / "scripts" / "train_in_background.sh").is_file()

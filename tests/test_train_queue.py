@@ -40,7 +40,7 @@ def tree(tmp_path):
 def run_queue(tree: Path, **env_extra: str) -> list[str]:
     env = {**os.environ, "DOABENCH": str(tree / "fake-doabench"), "CALLS": str(tree / "calls.txt"),
            "DOABENCH_LIBRISPEECH": "/libri", "QUEUE_NATIVE_BF16": "1"}
-    env.pop("QUEUE_DEADLINE", None)  # the session's own deadline must not leak into the test
+    env.pop("QUEUE_DEADLINE", None)  # a deadline of the calling shell must not leak into the test
     env.update(env_extra)
     subprocess.run(["bash", str(tree / "scripts" / "train_queue.sh")], check=True, env=env, capture_output=True)
     calls = tree / "calls.txt"
@@ -88,13 +88,13 @@ def test_queue_skips_exported_runs_resumes_and_exports_in_order(tree):
     assert run_queue(tree) == []
 
 
-def test_a_deadline_defers_runs_that_must_finish_in_one_session(tree):
+def test_a_deadline_defers_runs_that_must_finish_without_a_stop(tree):
     for name in ("cross3d-16x32", "cross3d-8x16"):
         (tree / "training-runs" / name).mkdir(parents=True)
         (tree / "training-runs" / name / "exported.txt").write_text("exported\n")
     two_hours = str(int(time.time()) + 2 * 3600)
     trains = [c.split()[2] for c in run_queue(tree, QUEUE_DEADLINE=two_hours) if "--export" not in c]
-    # the 1D CNNs (states too large to commit mid-run) need 2.4 h: deferred; the others span sessions
+    # the 1D CNNs (states too large to commit mid-run) need 2.4 h: deferred; the others may be stopped and resumed
     assert trains == ["cross3d:4x8", "seldnet", "spec-cnn2d", "cross3d:16x32", "cross3d:16x32", "cross3d:8x16",
                       "cross3d:32x64"]
     assert not (tree / "training-runs" / "gcc-cnn1d").exists()
