@@ -51,8 +51,8 @@ def side_by_side(log: Path, other: Path) -> str:
     loss."""
     mine = {r["epoch"]: r for r in csv.DictReader(log.open())}
     theirs = {r["epoch"]: r for r in csv.DictReader(other.open())}
-    lines = [f"| epoch | val loss | val RMSAE all (deg) | val RMSAE non-silent (deg) | val RMSAE held (deg) |\n"
-             f"|---|---|---|---|---|\n"]
+    lines = ["| epoch | val loss | val RMSAE all (deg) | val RMSAE non-silent (deg) | val RMSAE held (deg) |\n"
+             "|---|---|---|---|---|\n"]
     for epoch in sorted(set(mine) & set(theirs), key=int):
         a, b = mine[epoch], theirs[epoch]
         cells = [f"{float(a['val_loss']):.4f} / {float(b['val_loss']):.4f}"]

@@ -180,7 +180,9 @@ def format_summary(results: dict[str, Any]) -> str:
     if rec:
         lines.insert(2, f"{'RMSAE all, mean of recordings [deg]':<34}{rec['rmsae_all']:>10.2f}   (headline, "
                         f"the paper's Table II; non-silent {rec['rmsae_nonsilent']:.2f})")
-    lines[1:1] = [weights_line({**results["tracker"], "weights_name": results_weights_name(results)})]
+    tracker = results["tracker"]
+    if tracker.get("weights_hash") or tracker.get("untrained"):  # learned trackers: which weights ran
+        lines[1:1] = [weights_line({**tracker, "weights_name": results_weights_name(results)})]
     if "lag_s" in s:  # moving-talker tasks: how far behind, and the error by the talker's angular speed
         lag = s.get("lag_s")
         lines.append(f"{'tracking lag [s]':<34}{lag:>10.2f}" if lag is not None else
