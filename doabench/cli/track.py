@@ -188,10 +188,6 @@ def main(args: argparse.Namespace) -> int:
                                      f"; a recording is tracked whole, run it again with: {command_line(args)}")
     # An untrained learned model is refused unless weights=random.
     tracker = make_checked_tracker(args.tracker, parse_options(args.tracker_opt))
-    from doabench.results.writer import weights_line
-
-    if tracker.weights_hash() or tracker.describe().get("trained") is False:
-        print(f"doabench track: {args.tracker}: {weights_line(tracker.describe())}", file=sys.stderr)
     from doabench.runner import recordings
     from doabench.trackers.base import resolve_delays
 
@@ -211,6 +207,10 @@ def main(args: argparse.Namespace) -> int:
         if not truth["has_vad"]:
             raise InputError(f"--vad truth: {args.truth} has no vad column")
         sample_vad = samples_from_frame_vad(truth["vad"], rec.samples, spec.window, spec.hop)
+    from doabench.results.writer import weights_line
+
+    if tracker.weights_hash() or tracker.describe().get("trained") is False:  # inputs checked: say what runs
+        print(f"doabench track: {args.tracker}: {weights_line(tracker.describe())}", file=sys.stderr)
     chunks, silent = recordings.recording_chunks(rec, args.vad, sample_vad=sample_vad)
     out = recordings.track_stream(tracker, array, chunks, resolve_delays(tracker, args.delays)[0], args.device)
     if silent or not out["vad"].any():
