@@ -419,9 +419,13 @@ def test_resume_refuses_recipe_options_that_differ_from_the_run(tmp_path, caches
     faster = tiny_recipe(phases=(Phase(0, (30.0, 30.0), 2, 1e-1), Phase(1, (5.0, 30.0), 4, 1e-3)))
     with pytest.raises(doabench.DoabenchError, match=r"--lr 0.1,0.001 \(the run's: 0.01,0.001\)"):
         make_trainer(tmp_path / "run", caches, faster, resume=True, recipe_options=("--lr",))
+    # a switch may move only while neither it nor the asked one lies in the epochs trained (1 here)
+    later = tiny_recipe(phases=(Phase(0, (30.0, 30.0), 2, 1e-2), Phase(2, (5.0, 30.0), 4, 1e-3)))
+    moved = make_trainer(tmp_path / "run", caches, later, resume=True, recipe_options=("--switch-epoch", "--seed"))
+    assert [p.start_epoch for p in moved.recipe.phases] == [0, 2]
+    make_trainer(tmp_path / "run", caches, resume=True, max_epochs=2).run()  # now past the switch
     with pytest.raises(doabench.DoabenchError, match=r"--switch-epoch 2 \(the run's: 1\)"):
-        later = tiny_recipe(phases=(Phase(0, (30.0, 30.0), 2, 1e-2), Phase(2, (5.0, 30.0), 4, 1e-3)))
-        make_trainer(tmp_path / "run", caches, later, resume=True, recipe_options=("--switch-epoch", "--seed"))
+        make_trainer(tmp_path / "run", caches, later, resume=True, recipe_options=("--switch-epoch",))
     # options that agree with the run, and options not given, let it resume with its own recipe
     same = make_trainer(tmp_path / "run", caches, faster, resume=True, recipe_options=("--switch-epoch", "--seed"))
     assert [p.lr for p in same.recipe.phases] == [1e-2, 1e-3]

@@ -14,7 +14,7 @@ learning rate) plus the epoch size and count and where trajectories come from:
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterable
 
 from doabench.errors import ConfigError
@@ -144,8 +144,9 @@ def get_recipe(name: str) -> Recipe:
 
 
 # The `doabench train` options that set part of a recipe, each with what it sets. A resumed run
-# keeps the recipe it started with (only --epochs may change), so an option given with --resume
-# must agree with the run's own recipe: silently ignoring it would train something else than asked.
+# keeps the recipe it started with (only --epochs, and --switch-epoch for a switch still ahead, may
+# change), so an option given with --resume must agree with the run's own recipe: silently ignoring
+# it would train something else than asked.
 RECIPE_OPTIONS: dict[str, Callable[[Recipe], Any]] = {
     "--preset": lambda r: r.name,
     "--seed": lambda r: r.seed,
@@ -158,13 +159,39 @@ RECIPE_OPTIONS: dict[str, Callable[[Recipe], Any]] = {
 }
 
 
-def resume_conflicts(saved: Recipe, requested: Recipe, given: Iterable[str]) -> list[str]:
+def resume_conflicts(saved: Recipe, requested: Recipe, given: Iterable[str], epochs_done: int = 0) -> list[str]:
     """For each recipe option in ``given`` (command-line flags of :data:`RECIPE_OPTIONS`) whose
     value in ``requested`` differs from the resumed run's ``saved`` recipe: ``"--lr 0.001,0.0001
-    (the run's: 0.0001,1e-05)"``. Empty when the options agree with the run."""
+    (the run's: 0.0001,1e-05)"``. Empty when the options agree with the run.
+
+    ``--switch-epoch`` may differ while neither the run's switch nor the asked one lies in the
+    ``epochs_done`` epochs already trained: the history stays true, only the schedule ahead moves
+    (how a run is shortened to the time it has)."""
     conflicts = []
     for flag in given:
         value = RECIPE_OPTIONS[flag]
-        if value(requested) != value(saved):
-            conflicts.append(f"{flag} {value(requested)} (the run's: {value(saved)})")
+        if value(requested) == value(saved):
+            continue
+        if flag == "--switch-epoch" and switch_still_ahead(saved, requested, epochs_done):
+            continue
+        conflicts.append(f"{flag} {value(requested)} (the run's: {value(saved)})")
     return conflicts
+
+
+def switch_still_ahead(saved: Recipe, requested: Recipe, epochs_done: int) -> bool:
+    """Whether the phase switches of ``saved`` and ``requested`` both start at or after
+    ``epochs_done`` (the epochs already trained), with the same phases otherwise."""
+    if len(saved.phases) != len(requested.phases) or len(saved.phases) < 2:
+        return False
+    same_otherwise = all(replace(a, start_epoch=0) == replace(b, start_epoch=0)
+                         for a, b in zip(saved.phases, requested.phases))
+    starts = [p.start_epoch for p in saved.phases[1:]] + [p.start_epoch for p in requested.phases[1:]]
+    return same_otherwise and min(starts) >= epochs_done
+
+
+def resumed_phases(saved: Recipe, requested: Recipe, given: Iterable[str], epochs_done: int) -> Recipe:
+    """``saved`` with the phase switches of ``requested`` when ``--switch-epoch`` was given and
+    may move (:func:`switch_still_ahead`); ``saved`` otherwise."""
+    if "--switch-epoch" in given and switch_still_ahead(saved, requested, epochs_done):
+        return saved.replace(phases=requested.phases)
+    return saved

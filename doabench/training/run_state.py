@@ -28,7 +28,7 @@ import torch
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError
 from doabench.training import checkpoint as ckpt
-from doabench.training.recipes import Recipe, resume_conflicts
+from doabench.training.recipes import Recipe, resume_conflicts, resumed_phases
 
 #: what a new run selects its best epoch by (the score under the tracker's hold rule)
 BEST_BY = "val_rmsae_held"
@@ -63,12 +63,16 @@ def load_saved_run(out: Path, resume: bool) -> tuple[dict[str, Any] | None, Stam
 def resumed_recipe(saved: Mapping[str, Any], requested: Recipe, given: tuple[str, ...], epochs: int | None,
                    out: Path) -> Recipe:
     """The recipe a resumed run continues with: its own, with a new epoch count when ``epochs``
-    is given. A recipe option in ``given`` that differs from the run's is an error."""
+    is given and a phase switch moved when ``--switch-epoch`` is given and neither the old nor the
+    new switch lies in the epochs already trained. Any other recipe option in ``given`` that
+    differs from the run's is an error."""
     recipe = Recipe.from_dict(saved["recipe"])
-    if conflicts := resume_conflicts(recipe, requested, given):
-        raise ConfigError(f"{out} keeps the recipe it started with (only --epochs may change on "
-                          f"--resume), but {'; '.join(conflicts)}: drop the option or start a new run "
-                          "in another --out")
+    epochs_done = int(saved.get("epoch") or 0)
+    if conflicts := resume_conflicts(recipe, requested, given, epochs_done):
+        raise ConfigError(f"{out} keeps the recipe it started with (only --epochs, and --switch-epoch "
+                          f"from epoch {epochs_done} on, may change on --resume), but {'; '.join(conflicts)}: "
+                          "drop the option or start a new run in another --out")
+    recipe = resumed_phases(recipe, requested, given, epochs_done)
     return recipe if epochs is None else recipe.replace(epochs=epochs)
 
 
