@@ -61,7 +61,7 @@ def test_tracker_registry_decorator_and_module_path():
     assert isinstance(t, Toy) and t.name == "toy-const-registry-test"
     t2 = doabench.make_tracker("doabench.trackers.srp:SrpMaxTracker:8x16")
     assert t2.resolution == (8, 16)
-    with pytest.raises(NotFoundError, match="did you mean srp-max"):
+    with pytest.raises(NotFoundError, match="did you mean 'srp-max'"):
         doabench.make_tracker("srp-mux")
     with pytest.raises(ConfigError):
         doabench.register_tracker("bad", object)

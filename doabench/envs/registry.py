@@ -15,7 +15,7 @@ from __future__ import annotations
 import difflib
 import os
 import sys
-from importlib import metadata, resources
+from importlib import resources
 from pathlib import Path
 from typing import Any, Callable
 
@@ -23,13 +23,15 @@ import gymnasium
 
 from doabench.envs.spec import TaskSpec, load_spec_file, spec_from_dict
 from doabench.errors import ConfigError, NotFoundError
+from doabench.plugins import Registry
 
 PREFIX_ENTRY_POINT_GROUP = "doabench.task_prefixes"
 
 _TASKS: dict[str, TaskSpec] = {}
 _LOADED = False
-# Dynamic task families resolved from their id prefix, e.g. "file:data.h5" (dataset replay).
-_PREFIX_RESOLVERS: dict[str, Callable[[str], TaskSpec]] = {}
+#: Dynamic task families by the prefix of their ids (``file`` resolves ``file:data.h5``, dataset replay),
+#: doabench's own declared in its pyproject.toml as a plug-in's (:mod:`doabench.plugins`).
+TASK_PREFIXES: Registry[Callable[[str], TaskSpec]] = Registry("task prefix", PREFIX_ENTRY_POINT_GROUP, declares_own=True)
 # Task ids whose spec file could not be loaded at start-up -> the one-line reason. Asking for one
 # of them raises that reason; every other task and command keeps working.
 _BROKEN: dict[str, str] = {}
@@ -116,16 +118,9 @@ def register_task(spec: TaskSpec | dict[str, Any] | str | Path) -> list[TaskSpec
 
 
 def register_prefix(prefix: str, resolver: Callable[[str], TaskSpec]) -> None:
-    """Resolve ids starting with ``prefix`` (e.g. ``"file:"``) with ``resolver(task_id)``."""
-    _PREFIX_RESOLVERS[prefix] = resolver
-
-
-def _load_prefix(name: str) -> None:
-    """Register the resolver of the ``doabench.task_prefixes`` entry point ``name``, if there is one."""
-    for ep in metadata.entry_points(group=PREFIX_ENTRY_POINT_GROUP):
-        if ep.name == name:
-            _PREFIX_RESOLVERS.setdefault(f"{name}:", ep.load())  # its module may also register it
-            return
+    """Resolve ids ``<prefix>:<rest>`` (``prefix`` given as ``"file"`` or ``"file:"``) with
+    ``resolver(task_id)``; another resolver under a taken prefix is a ConfigError."""
+    TASK_PREFIXES.register(prefix.removesuffix(":"), resolver)
 
 
 def available_tasks() -> dict[str, TaskSpec]:
@@ -139,11 +134,9 @@ def get_task_spec(task_id: str | TaskSpec) -> TaskSpec:
         return task_id
     _ensure_loaded()
     head, colon, _ = task_id.partition(":")
-    if colon and f"{head}:" not in _PREFIX_RESOLVERS:
-        _load_prefix(head)
-    for prefix, resolver in _PREFIX_RESOLVERS.items():
-        if task_id.startswith(prefix):
-            return resolver(task_id)
+    prefix = TASK_PREFIXES.find(head) if colon else None
+    if prefix is not None:
+        return prefix[1](task_id)
     key = task_id
     if key.startswith("doabench/"):
         key = key[len("doabench/"):].rsplit("-v", 1)[0]

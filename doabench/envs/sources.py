@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import inspect
-from importlib import metadata
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol
 
 import numpy as np
@@ -29,6 +28,7 @@ import numpy as np
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, NotFoundError
+from doabench.plugins import Registry
 
 if TYPE_CHECKING:
     from doabench.corpora.speech import SpeechSource
@@ -42,42 +42,25 @@ class EpisodeSource(Protocol):
 
 ENTRY_POINT_GROUP = "doabench.task_kinds"
 
-_KINDS: dict[str, Callable[..., EpisodeSource]] = {}
+#: Every task kind, doabench's own declared in its pyproject.toml as a plug-in's (:mod:`doabench.plugins`).
+TASK_KINDS: Registry[Callable[..., EpisodeSource]] = Registry("task kind", ENTRY_POINT_GROUP, declares_own=True)
 
 
 def register_task_kind(kind: str, factory: Callable[..., EpisodeSource]) -> None:
-    """Register the episode-source factory ``factory(spec, **options)`` of a task kind."""
-    _KINDS[kind] = factory
-
-
-def _load_kind(kind: str) -> None:
-    """Load the ``doabench.task_kinds`` entry point named ``kind``, if there is one."""
-    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name == kind:
-            factory = ep.load()
-            _KINDS.setdefault(kind, factory)  # a module may also register itself while loading
-            return
+    """Register the episode-source factory ``factory(spec, **options)`` of a task kind; another
+    factory under a taken kind is a ConfigError."""
+    TASK_KINDS.register(kind, factory)
 
 
 def available_task_kinds() -> list[str]:
     """The kinds registered or declared in the ``doabench.task_kinds`` group (none is loaded)."""
-    return sorted(set(_KINDS) | {ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)})
+    return TASK_KINDS.names()
 
 
 def task_kind(kind: str, task_id: str | None = None) -> Callable[..., EpisodeSource]:
     """The factory of task kind ``kind`` (loaded from its entry point on first use); a one-line
-    ConfigError (naming ``task_id`` when given) for a kind nobody registered or declared."""
-    if kind not in _KINDS:
-        _load_kind(kind)
-    if kind not in _KINDS:
-        known = available_task_kinds()
-        declared = any(True for _ in metadata.entry_points(group=ENTRY_POINT_GROUP))
-        hint = "" if declared else (
-            f"; the installed doabench metadata declares no {ENTRY_POINT_GROUP} entry points: reinstall doabench "
-            "(pip install -e .)")
-        where = f"task {task_id!r}: " if task_id is not None else ""
-        raise ConfigError(f"{where}unknown kind {kind!r} (known: {', '.join(known)}){hint}")
-    return _KINDS[kind]
+    error (naming ``task_id`` when given) for a kind nobody registered or declared."""
+    return TASK_KINDS.get(kind, context=f"task {task_id!r}: " if task_id is not None else "")
 
 
 def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
@@ -152,10 +135,7 @@ def check_options(options: dict[str, Any]) -> None:
     given = {k for k, v in options.items() if v is not None}
     if not given:
         return
-    for kind in available_task_kinds():
-        if kind not in _KINDS:
-            _load_kind(kind)
-    known = set().union(*(kind_options(f) for f in _KINDS.values()))
+    known = set().union(*(kind_options(f) for f in TASK_KINDS.load_all().values()))
     unknown = sorted(given - known)
     if unknown:
         name = unknown[0]

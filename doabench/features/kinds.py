@@ -20,14 +20,13 @@ recording) at ``audio`` (docs/hdf5-schema.md).
 """
 from __future__ import annotations
 
-import difflib
 from dataclasses import dataclass
-from importlib import metadata
 from typing import Any, Callable, Iterable, Literal, NamedTuple, Sequence
 
 from doabench.errors import ConfigError
 from doabench.framing import FrameSpec
 from doabench.geometry import parse_resolution, resolution_text
+from doabench.plugins import Registry
 
 #: The SRP grid when nothing asks for another one.
 DEFAULT_RESOLUTION = (16, 32)
@@ -102,7 +101,6 @@ BUILTIN_KINDS: tuple[FeatureKind, ...] = (
     FeatureKind("audio", lambda c: (c.array.n_mics, c.frame_spec.window), framed=True,
                 description="the recording's samples, framed"),
 )
-_REGISTRY: dict[str, FeatureKind] = {k.name: k for k in BUILTIN_KINDS}
 
 #: The built-in kinds an environment observation may hold, in the order error messages list them
 #: (:func:`observation_kinds` adds the plug-ins').
@@ -121,41 +119,41 @@ HALF_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.half)
 DATASET_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.requestable)
 
 
-def register_feature_kind(kind: FeatureKind) -> FeatureKind:
-    """Add a plug-in kind (it must bring ``compute``); returns it. A built-in name cannot be taken."""
+def _check_plugin_kind(name: str, kind: Any) -> FeatureKind:
     if not isinstance(kind, FeatureKind):
         raise ConfigError(f"a feature kind must be a doabench FeatureKind, got {type(kind).__name__}")
+    if name != kind.name:
+        raise ConfigError(f"feature kind {kind.name!r} cannot be registered as {name!r}")
     if kind.name in OBSERVATION_KINDS or ":" in kind.name or not kind.name.isidentifier():
         raise ConfigError(f"feature kind name {kind.name!r} is taken or not a plain identifier")
     if kind.compute is None or kind.framed or kind.on_grid:
         raise ConfigError(f"feature kind {kind.name!r}: a plug-in kind brings compute() and is neither framed "
                           "nor on the SRP grid")
-    _REGISTRY[kind.name] = kind
     return kind
 
 
-def _declared() -> dict[str, Any]:
-    return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+#: Every feature kind: the built-ins (computed by doabench), then plug-ins from the
+#: ``doabench.feature_kinds`` group or :func:`register_feature_kind` (:mod:`doabench.plugins`).
+FEATURE_KINDS: Registry[FeatureKind] = Registry("feature kind", ENTRY_POINT_GROUP, _check_plugin_kind,
+                                                builtins={k.name: k for k in BUILTIN_KINDS})
+
+
+def register_feature_kind(kind: FeatureKind) -> FeatureKind:
+    """Add a plug-in kind (it must bring ``compute``); returns it. A built-in name cannot be taken."""
+    if not isinstance(kind, FeatureKind):
+        raise ConfigError(f"a feature kind must be a doabench FeatureKind, got {type(kind).__name__}")
+    return FEATURE_KINDS.register(kind.name, kind)
 
 
 def feature_kind(name: str) -> FeatureKind:
     """The registered kind ``name`` (a declared plug-in is loaded on first use), else a ConfigError
     naming the nearest kind."""
-    kind = _REGISTRY.get(name)
-    if kind is None and name in _declared():
-        register_feature_kind(_declared()[name].load())
-        kind = _REGISTRY[name]
-    if kind is None:
-        known = observation_kinds()
-        near = difflib.get_close_matches(str(name), known, n=1)
-        hint = f" (did you mean {near[0]!r}?)" if near else ""
-        raise ConfigError(f"unknown feature kind {name!r}{hint}; choose from {', '.join(known)}")
-    return kind
+    return FEATURE_KINDS.get(name)
 
 
 def observation_kinds() -> tuple[str, ...]:
     """Every kind an observation may hold: the built-ins, then the registered and declared plug-ins."""
-    return OBSERVATION_KINDS + tuple(sorted(({*_REGISTRY, *_declared()}) - set(OBSERVATION_KINDS)))
+    return OBSERVATION_KINDS + tuple(sorted(set(FEATURE_KINDS.names()) - set(OBSERVATION_KINDS)))
 
 
 def is_plugin(name: str) -> bool:

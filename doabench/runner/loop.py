@@ -74,7 +74,7 @@ def guarded(tracker: Tracker, what: str, fn: Callable[..., T], *args: Any) -> T:
     except DoabenchError:
         raise
     except Exception as exc:
-        from doabench.trackers.registry import one_line
+        from doabench.errors import one_line
 
         raise TrackerError(f"tracker {tracker.name!r} raised in {what}: {one_line(exc)}") from None
 

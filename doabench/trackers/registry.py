@@ -14,17 +14,28 @@ from __future__ import annotations
 import difflib
 import importlib
 import importlib.util
-from importlib import metadata
 from typing import Any, Callable, Mapping, TypeVar, overload
 
-from doabench.errors import ConfigError, DoabenchError, NotFoundError, TrackerError
+from doabench.errors import ConfigError, DoabenchError, NotFoundError, TrackerError, one_line
+from doabench.plugins import Registry
 from doabench.trackers.base import Tracker
 
 T = TypeVar("T", bound=type)
 
-_REGISTRY: dict[str, type[Tracker]] = {}
-_ENTRY_POINTS_LOADED = False
-_BUILTINS_LOADED = False
+ENTRY_POINT_GROUP = "doabench.trackers"
+
+
+def _check_tracker(name: str, klass: Any) -> type[Tracker]:
+    if not (isinstance(klass, type) and issubclass(klass, Tracker)):
+        raise ConfigError(f"register_tracker({name!r}): {klass!r} is not a doabench.Tracker subclass")
+    if not klass.__dict__.get("name"):  # a class declared only by its entry point is named by it
+        klass.name = name
+    return klass
+
+
+#: Every tracker id: doabench's own (``srp-max``, ``music``, ...) are declared in its pyproject.toml
+#: in the ``doabench.trackers`` group, as the baselines and any plug-in are (:mod:`doabench.plugins`).
+TRACKERS: Registry[type[Tracker]] = Registry("tracker", ENTRY_POINT_GROUP, _check_tracker, declares_own=True)
 
 
 @overload
@@ -32,53 +43,21 @@ def register_tracker(name: str, cls: None = None) -> Callable[[T], T]: ...
 @overload
 def register_tracker(name: str, cls: type[Tracker]) -> type[Tracker]: ...
 def register_tracker(name: str, cls: type[Tracker] | None = None) -> Callable[[T], T] | type[Tracker]:
-    """Register a Tracker subclass under ``name``; usable as ``@register_tracker("id")``."""
+    """Register a Tracker subclass under ``name``; usable as ``@register_tracker("id")``. Another
+    class under a taken id is a ConfigError."""
 
     def decorate(klass: T) -> T:
-        if not (isinstance(klass, type) and issubclass(klass, Tracker)):
-            raise ConfigError(f"register_tracker({name!r}): {klass!r} is not a doabench.Tracker subclass")
-        existing = _REGISTRY.get(name)
-        if existing is not None and existing is not klass and (
-            existing.__module__, existing.__qualname__) != (klass.__module__, klass.__qualname__):
-            raise ConfigError(f"tracker id {name!r} is already registered by {existing.__module__}.{existing.__qualname__}")
-        klass.name = name
-        _REGISTRY[name] = klass
+        TRACKERS.register(name, klass)
+        klass.name = name  # type: ignore[attr-defined]
         return klass
 
     return decorate(cls) if cls is not None else decorate
 
 
-def _load_builtins() -> None:
-    global _BUILTINS_LOADED
-    if not _BUILTINS_LOADED:
-        _BUILTINS_LOADED = True
-        importlib.import_module("doabench.trackers.srp")
-        importlib.import_module("doabench.trackers.pra")
-
-
-def _load_entry_points() -> None:
-    global _ENTRY_POINTS_LOADED
-    if _ENTRY_POINTS_LOADED:
-        return
-    _ENTRY_POINTS_LOADED = True
-    for ep in metadata.entry_points(group="doabench.trackers"):
-        if ep.name in _REGISTRY:
-            continue
-        try:
-            cls = ep.load()
-        except Exception as exc:  # a broken plugin must not break doabench
-            import warnings
-
-            warnings.warn(f"doabench: tracker plugin {ep.name!r} ({ep.value}) failed to load: {exc}")
-            continue
-        register_tracker(ep.name, cls)
-
-
 def available_trackers() -> dict[str, type[Tracker]]:
-    """All registered trackers (built in, entry points, decorated), sorted by id."""
-    _load_builtins()
-    _load_entry_points()
-    return dict(sorted(_REGISTRY.items()))
+    """All trackers (built in, entry points, registered), sorted by id; a plug-in that fails to
+    load is left out with a warning."""
+    return TRACKERS.load_all()
 
 
 def _import_class(path: str) -> type[Tracker]:
@@ -107,12 +86,6 @@ def _import_class(path: str) -> type[Tracker]:
     return cls
 
 
-def one_line(exc: BaseException) -> str:
-    """``Type: first line of the message`` of an exception, for one-line errors."""
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
-
-
 def _module_exists(name: str) -> bool:
     try:
         return importlib.util.find_spec(name) is not None
@@ -123,21 +96,16 @@ def _module_exists(name: str) -> bool:
 def resolve_tracker(text: str) -> tuple[type[Tracker], str | None, str]:
     """Parse a ``--tracker`` value into (class, spec, id)."""
     head, sep, rest = text.partition(":")
-    _load_builtins()
-    if head in _REGISTRY:  # built in or already registered: plugins (and torch) need not load
-        return _REGISTRY[head], rest or None, head
-    trackers = available_trackers()
+    found = TRACKERS.find(head)  # loads this id's entry point only: other plug-ins (and torch) need not load
+    if found is not None:
+        return found[1], rest or None, found[0]
     attr_text = rest.partition(":")[0]
     looks_like_class = attr_text.isidentifier() and attr_text[:1].isupper()
-    if sep and head not in trackers and ("." in head or looks_like_class or _module_exists(head)):
+    if sep and ("." in head or looks_like_class or _module_exists(head)):
         attr, _, spec = rest.partition(":")
         cls = _import_class(f"{head}:{attr}")
         return cls, spec or None, cls.name or f"{head}:{attr}"
-    if head not in trackers:
-        close = difflib.get_close_matches(head, trackers, n=3, cutoff=0.5)
-        hint = f"; did you mean {', '.join(close)}?" if close else ""
-        raise NotFoundError(f"unknown tracker {head!r}{hint} (available: {', '.join(trackers)})")
-    return trackers[head], rest or None, head
+    raise TRACKERS.unknown(head)
 
 
 def parse_options(pairs: list[str] | None) -> dict[str, Any]:
@@ -183,7 +151,7 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
 
     options = dict(options or {})
     cls, spec, name = resolve_tracker(text)
-    if _REGISTRY.get(name) is not cls:  # a class loaded by its path keeps the path: the id must load it again
+    if TRACKERS.registered().get(name) is not cls:  # a class loaded by its path keeps the path: the id must load it again
         head, _, rest = text.partition(":")
         name = f"{head}:{rest.partition(':')[0]}"
     if tracker is None:

@@ -1,0 +1,201 @@
+"""Named plug-ins: one registry type, with one set of rules, for every kind of thing doabench lets a
+package add (trackers, task kinds, task-id prefixes, feature kinds, room simulators).
+
+The rules, the same for each :class:`Registry`:
+
+* **Where names come from.** An entry point of the registry's group (``name = "package.module:attr"``
+  in a package's ``pyproject.toml``; doabench declares its own built-ins there, the way a plug-in
+  does) or :meth:`Registry.register` at run time.
+* **Lazy.** An entry point is loaded when its name is first asked for; listing names loads nothing.
+* **Matching.** A name matches exactly; failing that, case-insensitively when exactly one name does
+  (``Builtin`` finds ``builtin``); the object is returned under its registered name.
+* **Conflicts.** Registering another object under a taken name is a ConfigError naming the holder;
+  registering the same object again, or the same class re-imported (same module and qualified name),
+  is not a conflict. A module that registers its own names while its entry point loads is fine.
+* **Unknown names** are a NotFoundError naming the nearest names and every available one.
+* **Two packages declaring one name** hold it neither: asking for it is a one-line error naming both.
+* **A broken plug-in** (its entry point fails to load, or loads something the registry refuses) is a
+  one-line error naming it when it is asked for by name; :meth:`Registry.load_all` (listings) warns
+  and leaves it out, so one broken package does not hide the others.
+"""
+from __future__ import annotations
+
+import difflib
+import warnings
+from importlib import metadata
+from typing import Any, Callable, Generic, Iterator, Mapping, TypeVar
+
+from doabench.errors import ConfigError, DoabenchError, NotFoundError, one_line
+
+T = TypeVar("T")
+
+__all__ = ["Registry", "UnknownNameError"]
+
+
+class UnknownNameError(NotFoundError, ConfigError):
+    """A name no registry entry has (a NotFoundError, and a ConfigError as the setting it came from)."""
+
+
+def _same(a: Any, b: Any) -> bool:
+    """The same object, or the same class or function imported twice (a module reloaded)."""
+    if a is b:
+        return True
+    key = lambda o: (getattr(o, "__module__", None), getattr(o, "__qualname__", None))  # noqa: E731
+    return key(a)[1] is not None and key(a) == key(b)
+
+
+class Registry(Generic[T]):
+    """Names -> objects of one kind (module docstring: the rules).
+
+    ``what``: the noun in messages (``"tracker"``); ``group``: the entry-point group;
+    ``check(name, obj) -> obj``: validates (and may adapt) what is registered, raising a
+    DoabenchError for something this registry cannot hold. ``builtins``: entries defined in code
+    rather than declared (the feature kinds doabench computes itself), registered from the start.
+    ``declares_own``: doabench declares entries in the group itself, so a group with none means
+    stale installed metadata (an unknown name then says to reinstall).
+    """
+
+    def __init__(self, what: str, group: str, check: Callable[[str, Any], T] | None = None,
+                 builtins: Mapping[str, T] | None = None, declares_own: bool = False) -> None:
+        self.what, self.group, self.declares_own = what, group, declares_own
+        self._check = check
+        self._builtins = dict(builtins or {})
+        self._entries: dict[str, T] = dict(self._builtins)
+        self._loading: set[str] = set()  # entry points being loaded: their module may register itself
+        self._broken: dict[str, str] = {}
+
+    # -- registering ---------------------------------------------------------------------------
+    def register(self, name: str, obj: Any) -> T:
+        """Register ``obj`` under ``name`` (after ``check``); returns what was registered."""
+        name = str(name)
+        if not name:
+            raise ConfigError(f"a {self.what} needs a name")
+        value = self._check(name, obj) if self._check is not None else obj
+        held = self._entries.get(name)
+        entry = self.declared().get(name) if held is None and name not in self._loading else None
+        if entry is not None and entry.value.replace(" ", "") != _target(value):
+            self._load(name)  # declared by another package (or another object): that one holds the name
+            held = self._entries.get(name)
+            if held is None:
+                raise ConfigError(f"{self.what} {name!r} is declared by {entry.value}; choose another name for "
+                                  f"{_describe(value)}")
+        if held is not None and not _same(held, value):
+            raise ConfigError(f"{self.what} {name!r} is already registered by {_describe(held)}; "
+                              f"choose another name for {_describe(value)}")
+        self._entries[name] = value
+        self._broken.pop(name, None)
+        return value
+
+    # -- what there is ------------------------------------------------------------------------
+    def declared(self) -> dict[str, metadata.EntryPoint]:
+        """The entry points of the group, by name (none is loaded)."""
+        return {ep.name: ep for ep in metadata.entry_points(group=self.group)}
+
+    def _claims(self, name: str) -> list[str]:
+        """The different targets declared for ``name`` (more than one: two packages claim it)."""
+        targets = {ep.value.replace(" ", ""): ep for ep in metadata.entry_points(group=self.group) if ep.name == name}
+        return [f"{getattr(ep.dist, 'name', None) or 'a package'}: {value}" for value, ep in targets.items()]
+
+    def names(self) -> list[str]:
+        """Every name registered or declared, sorted (none is loaded)."""
+        return sorted({*self._entries, *self.declared()})
+
+    def registered(self) -> dict[str, T]:
+        """What is registered so far (nothing is loaded)."""
+        return dict(self._entries)
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and self.match(name) is not None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def match(self, name: str) -> str | None:
+        """The registered or declared name ``name`` refers to (exact, else the one case-insensitive
+        match), or None."""
+        known = {*self._entries, *self.declared()}
+        if name in known:
+            return name
+        folded = [k for k in known if k.lower() == str(name).lower()]
+        return folded[0] if len(folded) == 1 else None
+
+    # -- getting ------------------------------------------------------------------------------
+    def find(self, name: str) -> tuple[str, T] | None:
+        """``(registered name, object)`` for ``name``, loading its entry point on first use; None
+        when nobody registered or declared it. A broken plug-in raises (one line, naming it)."""
+        key = self.match(name)
+        if key is None:
+            return None
+        if key not in self._entries:
+            self._load(key)
+        if key not in self._entries:
+            raise ConfigError(self._broken.get(key) or f"{self.what} plug-in {key!r} registered nothing")
+        return key, self._entries[key]
+
+    def get(self, name: str, context: str = "") -> T:
+        """The object registered or declared as ``name``; an :class:`UnknownNameError` naming the
+        nearest names and every available one otherwise (``context`` prefixes the message)."""
+        found = self.find(name)
+        if found is None:
+            raise self.unknown(name, context)
+        return found[1]
+
+    def unknown(self, name: str, context: str = "") -> UnknownNameError:
+        """The error for a name nobody registered or declared."""
+        known = self.names()
+        near = difflib.get_close_matches(str(name), known, n=3, cutoff=0.5)
+        hint = f"; did you mean {', '.join(map(repr, near))}?" if near else ""
+        if self.declares_own and not self.declared():
+            hint += (f"; the installed doabench metadata declares no {self.group} entry points: reinstall "
+                     "doabench (pip install -e .)")
+        return UnknownNameError(f"{context}unknown {self.what} {name!r}{hint} (available: {', '.join(known) or 'none'})")
+
+    def load_all(self) -> dict[str, T]:
+        """Every entry, each declared one loaded, sorted by name. A plug-in that fails to load is
+        left out with a warning naming it."""
+        for name in self.declared():
+            if name not in self._entries:
+                self._load(name)
+                if name in self._broken:
+                    warnings.warn(f"doabench: {self._broken[name]}")
+        return dict(sorted(self._entries.items()))
+
+    def _load(self, name: str) -> None:
+        entry = self.declared().get(name)
+        if entry is None:
+            return
+        if len(claims := self._claims(name)) > 1:  # neither package wins silently
+            self._broken[name] = (f"{self.what} {name!r} is declared by {len(claims)} packages "
+                                  f"({'; '.join(sorted(claims))}): uninstall one of them")
+            return
+        self._loading.add(name)  # while its module loads and registers itself, and while it is registered
+        try:
+            try:
+                obj = entry.load()
+            except Exception as exc:  # a broken plug-in is named, never a traceback
+                self._broken[name] = f"{self.what} plug-in {name!r} ({entry.value}) failed to load: {one_line(exc)}"
+                return
+            if name in self._entries:  # its module registered it while loading: that registration stands
+                if not _same(self._entries[name], obj):
+                    self._broken[name] = (f"{self.what} plug-in {name!r} ({entry.value}) is not what its module "
+                                          f"registered as {name!r} ({_describe(self._entries[name])})")
+                return
+            try:
+                self.register(name, obj)
+            except DoabenchError as exc:
+                self._broken[name] = f"{self.what} plug-in {name!r} ({entry.value}): {exc}"
+        finally:
+            self._loading.discard(name)
+
+
+def _target(obj: Any) -> str | None:
+    """``module:qualname`` of a class or function (how an entry point names it); None otherwise."""
+    module, qualname = getattr(obj, "__module__", None), getattr(obj, "__qualname__", None)
+    return f"{module}:{qualname}" if isinstance(module, str) and isinstance(qualname, str) else None
+
+
+def _describe(obj: Any) -> str:
+    module, qualname = getattr(obj, "__module__", None), getattr(obj, "__qualname__", None)
+    if module and qualname:
+        return f"{module}.{qualname}"
+    return repr(obj)
