@@ -65,7 +65,7 @@ fi
 # cross3d-32x64-moving: the same on the paper's finer 32x64 maps. Its step is step-bound (1.29 CPU-s
 # per trajectory compiled in bf16 against a 0.34 s item, benchmarks/bench_training.py), so the
 # training process takes both cores (2 threads) and the data worker fills the gaps. Its schedule is
-# shortened to 20 epochs, the switch at epoch 10: the paper's 80 take about 12 h of these cores and
+# shortened to 18 epochs, the switch at epoch 10: the paper's 80 take about 12 h of these cores and
 # more run-state commits than a round allows, and the 16x32 moving run made most of its gain after
 # epoch 10 in the first epoch of its second phase (validation, voice-active: 13.32 -> 11.74 deg; its
 # last 59 epochs added 0.8 deg).
@@ -80,7 +80,7 @@ QUEUE=(
     "cross3d:16x32 paper cross3d-16x32-v3 cross3d-16x32-v3 float32 0 1/2"
     "cross3d:16x32 paper cross3d-16x32-moving cross3d-16x32-moving float32 0 1/2 --task sim-train-moving"
     "cross3d:8x16 paper cross3d-8x16-moving cross3d-8x16-moving float32 0 1/2 --task sim-train-moving"
-    "cross3d:32x64 paper cross3d-32x64-moving cross3d-32x64-moving float32 0 2 --task sim-train-moving --epochs 20 --switch-epoch 10"
+    "cross3d:32x64 paper cross3d-32x64-moving cross3d-32x64-moving float32 0 2 --task sim-train-moving --epochs 18 --switch-epoch 10"
 )
 
 native_bf16=""  # asked once, only when an entry's threads depend on it (QUEUE_NATIVE_BF16=0/1 overrides)
@@ -105,10 +105,14 @@ for entry in "${QUEUE[@]}"; do
     resume=()
     if [ -f "$out/checkpoint.safetensors" ]; then
         resume=(--resume)
-        # the run keeps the recipe it started with; only its task is named again (train checks it)
+        # the run keeps the recipe it started with: its task is named again (train checks it), and
+        # the entry's schedule (--epochs, --switch-epoch) is passed on, which a resumed run may take
+        # while the switch is still ahead (so an entry's schedule can be shortened mid-run)
         kept=()
         for ((i = 0; i < ${#extra[@]}; i++)); do
-            [ "${extra[i]}" = --task ] && kept=(--task "${extra[i + 1]}")
+            case "${extra[i]}" in
+                --task | --epochs | --switch-epoch) kept+=("${extra[i]}" "${extra[i + 1]}") ;;
+            esac
         done
         extra=(${kept[@]+"${kept[@]}"})
     elif [ -n "$DEADLINE" ] && [ "$whole_hours" != 0 ]; then

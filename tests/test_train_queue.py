@@ -126,7 +126,8 @@ def test_a_resumed_run_keeps_its_recipe(tree):
     (tree / "training-runs" / "spec-cnn2d" / "checkpoint.safetensors").write_text("state\n")
     trains = [c for c in run_queue(tree) if "--export" not in c]
     spec = [c for c in trains if c.split()[2] == "spec-cnn2d"]
-    assert len(spec) == 1 and "--resume" in spec[0] and "--epochs" not in spec[0]
+    # the entry's schedule goes with it (a resumed run may take it: train refuses a switch in the past)
+    assert len(spec) == 1 and "--resume" in spec[0] and "--epochs 18 --switch-epoch 9" in spec[0]
     assert "--threads 2" in spec[0]  # threads are not recipe: a resumed run keeps them too
 
 
