@@ -35,7 +35,7 @@ from doabench.acoustics import rir as engine
 from doabench.acoustics import convolution
 from doabench.acoustics.scenes import SceneDistribution, sample_scene
 from doabench.acoustics.simulators import get_simulator
-from doabench.results.provenance import cpu_name as _cpu_name
+from doabench.provenance import cpu_name as _cpu_name
 
 STAGES = {  # stage -> (module, function name)
     "image sources": [(engine, "render_images")],

@@ -23,7 +23,7 @@ import time
 import numpy as np
 import torch
 
-from doabench.results.provenance import cpu_name
+from doabench.provenance import cpu_name
 from doabench.arrays import get_array
 from doabench.geometry import resolution_text
 from doabench.features import SRPPHAT

@@ -36,7 +36,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from doabench.results.provenance import cpu_name  # noqa: E402
+from doabench.provenance import cpu_name  # noqa: E402
 from doabench.training.recipes import paper_recipe  # noqa: E402
 from doabench.training.trainer import TrainOptions, Trainer  # noqa: E402
 

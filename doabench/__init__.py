@@ -102,7 +102,7 @@ def __getattr__(name: str) -> Any:
         globals()[name] = ObservationPlan
         return ObservationPlan
     if name == "atomic_path":  # the output rule (docs/guarantees.md), for plug-ins that write files
-        from doabench.results.files import atomic_path
+        from doabench.files import atomic_path
 
         globals()[name] = atomic_path
         return atomic_path

@@ -53,7 +53,7 @@ def export_onnx(tracker: Any, out: str | Path, tracker_id: str | None = None, ve
     (``max_abs_diff`` None when onnxruntime is not installed)."""
     import torch
 
-    from doabench.results.files import atomic_path
+    from doabench.files import atomic_path
 
     network = getattr(tracker, "network", None)
     if not isinstance(network, torch.nn.Module) or not hasattr(tracker, "episode_input"):

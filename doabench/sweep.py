@@ -160,7 +160,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
         _sweep_ray(todo, out, specs, (episodes, keep_frames, env_options), ray_address, workers, log, overwrite)
     result = SweepResult(out, runs)
     if any(r.status in ("done", "skipped") for r in runs):
-        from doabench.results.leaderboard import build_leaderboards, default_references, write_leaderboards
+        from doabench.reporting.leaderboard import build_leaderboards, default_references, write_leaderboards
 
         board = Path(leaderboard) if leaderboard is not None else out / "leaderboard"
         files = build_leaderboards(out, default_references(board),

@@ -249,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--docs", default="docs", help="docs folder (default: docs)")
     parser.add_argument("--check", action="store_true", help="write nothing; exit 1 if a page is stale")
     args = parser.parse_args(argv)
-    from doabench.results.files import write_text
+    from doabench.files import write_text
 
     try:
         pages = generated_pages(Path(args.docs))

@@ -214,7 +214,7 @@ def _task_line(task: str) -> str:
 def compare_block(files: list[str], root: Path = ROOT) -> str:
     """``doabench compare`` on committed results files, in brief: per comparison the pooled
     RMSAE (all frames, voice-active) differences with their verdicts and the cells' tally."""
-    from doabench.results import compare as cmp
+    from doabench.reporting import compare as cmp
 
     runs = [cmp.load_run(root / f) for f in files]
     for run, f in zip(runs, files):
@@ -513,7 +513,7 @@ def _distribution_text(task: str | None) -> str:
     from doabench.errors import DoabenchError
 
     from doabench.envs.registry import get_task_spec
-    from doabench.results.distribution import FAMILY_FEATURES, scene_features
+    from doabench.reporting.distribution import FAMILY_FEATURES, scene_features
 
     try:
         spec = get_task_spec(task or "")

@@ -27,7 +27,7 @@ import math
 import sys
 from pathlib import Path
 
-from doabench.results.compare import Run, compare, load_run
+from doabench.reporting.compare import Run, compare, load_run
 
 ROOT = Path(__file__).resolve().parents[1]
 MOVING_TASKS = ("sim-walk", "sim-turn")

@@ -11,7 +11,7 @@ import pytest
 
 from doabench.cli.main import main
 from doabench.metrics import LAG_MAX_S, LAG_STEP_S, lag_grid
-from doabench.results import compare as cmp
+from doabench.reporting import compare as cmp
 
 ROOT = Path(__file__).resolve().parents[1]
 UP, EAST, NORTH = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from doabench.results.distribution import IN, OUT, training_distribution
+from doabench.reporting.distribution import IN, OUT, training_distribution
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,7 +47,7 @@ def test_trackers_without_a_training_record_get_no_mark(learned):
 
 
 def test_leaderboard_rows_carry_the_mark(learned, tmp_path):
-    from doabench.results.leaderboard import build_leaderboards
+    from doabench.reporting.leaderboard import build_leaderboards
 
     (tmp_path / "a.json").write_text(json.dumps(learned))
     files = build_leaderboards(tmp_path)

@@ -357,13 +357,13 @@ def test_a_stale_lock_of_a_dead_process_is_taken_over(tmp_path, capsys):
 
 def test_a_held_lock_names_its_owner(tmp_path):
     from doabench.errors import InputError
-    from doabench.results.files import exclusive_lock
+    from doabench.files import exclusive_lock
 
     lock = tmp_path / "x.lock"
     with exclusive_lock(lock, "the thing"):
         assert json.loads(lock.read_text())["pid"] == os.getpid()
         holder = subprocess.run([sys.executable, "-c", (
-            "import sys\nfrom doabench.results.files import exclusive_lock\n"
+            "import sys\nfrom doabench.files import exclusive_lock\n"
             f"with exclusive_lock({str(lock)!r}, 'the thing'): pass\n")], capture_output=True, text=True,
             cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)))
         assert holder.returncode != 0 and f"pid {os.getpid()}" in holder.stderr

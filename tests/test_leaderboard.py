@@ -11,7 +11,7 @@ import pytest
 
 from doabench.cli.main import main as cli
 from doabench.errors import InputError
-from doabench.results.leaderboard import build_leaderboards, stale_files
+from doabench.reporting.leaderboard import build_leaderboards, stale_files
 from doabench.results.ranking import load_runs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -205,7 +205,7 @@ def test_the_reproduce_command_takes_its_flags_from_the_task_kind(monkeypatch):
     import dataclasses
 
     import doabench.envs.sources as sources
-    from doabench.results.leaderboard import reproduce_command
+    from doabench.reporting.leaderboard import reproduce_command
 
     def results(kind, source):
         return {"task": {"id": "t", "kind": kind, "source": source}, "tracker": {"id": "srp-max:8x16"}}
@@ -230,7 +230,7 @@ def test_the_reproduce_command_takes_its_flags_from_the_task_kind(monkeypatch):
         raise AssertionError("not built for a leaderboard")
 
     tones.Options = ToneOptions
-    monkeypatch.setitem(sources._KINDS, "tones", tones)
+    monkeypatch.setitem(sources.TASK_KINDS._entries, "tones", tones)  # registered for this test only
     assert reproduce_command(results("tones", {"recorded": True})).endswith("--task t --tone-root TONES_ROOT")
     assert reproduce_command(results("not-installed", {"recorded": True})).endswith("--task t")
 

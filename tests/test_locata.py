@@ -309,7 +309,7 @@ def test_locata_headline_is_the_mean_of_recordings(tmp_path):
     """Ranked like the paper's Table II: mean of per-recording RMSAEs, pooled as a second column."""
     import json
 
-    from doabench.results.leaderboard import build_leaderboards
+    from doabench.reporting.leaderboard import build_leaderboards
     from test_leaderboard import _results
 
     d = tmp_path / "results"

@@ -24,7 +24,7 @@ import soundfile as sf
 
 from doabench.cli.main import main
 from doabench.errors import OutputError
-from doabench.results.files import atomic_path, resolve_output, write_text
+from doabench.files import atomic_path, resolve_output, write_text
 
 from conftest import ROOT, tiny_task_toml
 
@@ -243,7 +243,7 @@ _ALLOWED = {
 
 def test_the_writer_check_sees_a_write_by_name(tmp_path):
     module = tmp_path / "m.py"
-    module.write_text("import io\nfrom doabench.results.files import atomic_path\n"
+    module.write_text("import io\nfrom doabench.files import atomic_path\n"
                       "def f(df, fig, path):\n"
                       "    df.to_csv(path)\n"                       # 4: bypasses the rule
                       "    with atomic_path(path) as tmp:\n"
@@ -260,7 +260,7 @@ def test_the_writer_check_sees_a_write_by_name(tmp_path):
 def test_every_writer_goes_through_the_output_rule():
     sources = sorted([*(ROOT / "doabench").rglob("*.py"), *(ROOT / "baselines").glob("*.py")])
     bad = [hit for path in sources if path.name not in _ALLOWED for hit in _writes_outside_the_helper(path)]
-    assert not bad, f"files written without doabench.results.files.atomic_path: {bad}"
+    assert not bad, f"files written without doabench.files.atomic_path: {bad}"
 
 
 # -- failed writes -----------------------------------------------------------------------------------
@@ -388,7 +388,7 @@ def test_injected_write_errors_are_one_line_and_leave_no_partial_file(code, tmp_
     system would, at the rename (after the data was written) and inside the writer."""
     import pandas as pd
 
-    import doabench.results.files as files
+    import doabench.files as files
 
     good = tmp_path / "o.csv"
     good.write_text("kept\n")
@@ -434,7 +434,7 @@ def test_injected_journal_write_error_keeps_the_journal_resumable(tmp_path, caps
 
 
 def test_append_line_cuts_a_failed_line_off(tmp_path, monkeypatch):
-    from doabench.results.files import append_line
+    from doabench.files import append_line
 
     path = tmp_path / "j.jsonl"
     append_line(path, '{"a": 1}')

@@ -3,7 +3,7 @@ trackers there are, labels that carry the tracker's options, legends clear of th
 RMSAE-by-angular-speed plot, and help texts that say what the plots do."""
 from __future__ import annotations
 
-from doabench.results.files import load_results
+from doabench.results.schema import load_results
 
 import copy
 import json
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from doabench.cli.main import main
-from doabench.results import plots
+from doabench.reporting import plots
 from test_leaderboard import _results
 
 
@@ -203,7 +203,7 @@ def test_no_render_help_matches_what_is_drawn(tmp_path: Path, capsys) -> None:
 
 
 def test_leaderboards_comparisons_and_legends_name_a_configuration_alike():
-    from doabench.results.compare import run_label
+    from doabench.reporting.compare import run_label
     from doabench.results.ranking import RunFile
 
     results = {"tracker": {"id": "srp-kalman:32x64", "options": {"weights": "/tmp/x/model.safetensors", "alpha": 0.5}},

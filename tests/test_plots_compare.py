@@ -33,8 +33,8 @@ def test_rmsae_vs_t60_accepts_per_cell_results(tmp_path: Path) -> None:
         for cell, shift in (("sim-t60-0.3-snr-30", 0.0), ("sim-t60-0.9-snr-30", 5.0)):
             r = _results(tracker, base + shift, cell, 2, 2)
             files.append(_write(tmp_path / f"{cell}__{tracker.replace(':', '_')}.json", r))
-    from doabench.results.files import load_results
-    from doabench.results.plots import merge_cell_runs
+    from doabench.results.schema import load_results
+    from doabench.reporting.plots import merge_cell_runs
 
     merged = merge_cell_runs([load_results(f) for f in files])
     assert len(merged) == 2 and all(len(m["cells"]) == 2 for m in merged)  # one line per tracker, two T60s
@@ -46,11 +46,11 @@ def test_rmsae_vs_t60_accepts_per_cell_results(tmp_path: Path) -> None:
 def test_maps_have_a_colour_bar(tmp_path: Path) -> None:
     import numpy as np
 
-    from doabench.results.plots import plot_maps
+    from doabench.reporting.plots import plot_maps
 
     m = np.random.default_rng(0).random((8, 16))
     captured = {}
-    import doabench.results.plots as plots
+    import doabench.reporting.plots as plots
 
     original = plots.save_figure
 

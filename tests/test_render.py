@@ -205,7 +205,7 @@ def test_outputs_respect_the_umask(tmp_path, monkeypatch):
     import os
     import stat
 
-    from doabench.results.files import write_json
+    from doabench.files import write_json
 
     monkeypatch.delenv("DOABENCH_LIBRISPEECH", raising=False)
     old = os.umask(0o022)

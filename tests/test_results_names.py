@@ -42,7 +42,7 @@ def test_two_option_values_write_two_files(tmp_path: Path, capsys) -> None:
     alphas = sorted(json.loads((out / f).read_text())["tracker"]["options"]["alpha"] for f in files)
     assert alphas == [0.2, 0.7]
     # Both show up as distinct rows on the leaderboard.
-    from doabench.results.leaderboard import build_leaderboards
+    from doabench.reporting.leaderboard import build_leaderboards
 
     page = build_leaderboards(out)["sim-demo.md"]
     assert "`srp-kalman:4x8 (alpha=0.2)`" in page and "`srp-kalman:4x8 (alpha=0.7)`" in page
@@ -90,7 +90,7 @@ def test_committed_results_carry_the_names_their_configuration_gives() -> None:
 def test_a_run_on_another_simulator_is_another_configuration(tmp_path: Path, capsys) -> None:
     """--backend changes the episodes: the second run must not replace the first, the leaderboard
     shows two rows, the file says which options it ran with and its reproduce line repeats them."""
-    from doabench.results.leaderboard import build_leaderboards, reproduce_command
+    from doabench.reporting.leaderboard import build_leaderboards, reproduce_command
 
     out = tmp_path / "bk"
     assert _run(out, "--tracker", "srp-max:4x8", "--backend", "pyroomacoustics") == 0
@@ -149,7 +149,7 @@ def test_compare_refuses_runs_of_other_task_options(tmp_path: Path, capsys) -> N
 
 
 def test_a_plug_in_trackers_reproduce_line_uses_the_id_that_was_typed() -> None:
-    from doabench.results.leaderboard import reproduce_command
+    from doabench.reporting.leaderboard import reproduce_command
 
     data = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
     data["tracker"] = {**data["tracker"], "id": "fixed-front", "name": "fixed-front",

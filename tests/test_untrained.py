@@ -65,7 +65,7 @@ def test_describe_still_shows_an_untrained_model(capsys) -> None:
 
 
 def test_explicit_random_runs_and_is_marked_untrained(tmp_path: Path) -> None:
-    from doabench.results.leaderboard import build_leaderboards
+    from doabench.reporting.leaderboard import build_leaderboards
     from doabench.results.writer import write_results
 
     results = doabench.run(tracker="cross3d:4x8", task="sim-demo", episodes=1, progress=False,

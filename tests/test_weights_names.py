@@ -155,7 +155,7 @@ def test_run_uses_the_default_says_which_and_records_the_name(tmp_path: Path, ca
 
 def test_views_print_the_name_of_committed_results_made_before_names_existed() -> None:
     from doabench.results.labels import run_label
-    from doabench.results.leaderboard import reproduce_command
+    from doabench.reporting.leaderboard import reproduce_command
 
     paper = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32.json").read_text())
     moving = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32__65934501.json").read_text())

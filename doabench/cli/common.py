@@ -135,11 +135,11 @@ def _check_writable_folder(folder: Path, option: str, target: Path) -> None:
 
 def check_output_file(path: str | Path, inputs: Iterable[str | Path] = (), option: str = "--out") -> Path:
     """Refuse, before any computation, an output file that doabench never writes (a folder, a block
-    device, a broken symbolic link: :func:`doabench.results.files.resolve_output`), that lies in an
+    device, a broken symbolic link: :func:`doabench.files.resolve_output`), that lies in an
     unwritable folder, or that is one of the inputs (writing it would destroy the input). A stream
     (``-``, a FIFO, a character device) is written through and needs no folder."""
     from doabench.errors import InputError, OutputError
-    from doabench.results.files import resolve_output
+    from doabench.files import resolve_output
 
     out = Path(path)
     try:

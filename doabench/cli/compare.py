@@ -58,8 +58,8 @@ def _holds(text: str | None) -> list[int]:
 def main(args: argparse.Namespace) -> int:
     from doabench.cli.common import check_output_file
     from doabench.errors import ConfigError, InputError
-    from doabench.results import compare as cmp
-    from doabench.results.files import write_text
+    from doabench.reporting import compare as cmp
+    from doabench.files import write_text
 
     holds = _holds(args.hold)
     if args.resamples < 100:
@@ -114,6 +114,6 @@ def main(args: argparse.Namespace) -> int:
 
 def cmp_output_paths(out: str) -> list[Path]:
     """The PNG and PDF a ``--plot OUT`` writes."""
-    from doabench.results.plots import output_paths
+    from doabench.reporting.plots import output_paths
 
     return output_paths(out)

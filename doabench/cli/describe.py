@@ -15,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from doabench.errors import ConfigError
-    from doabench.results.files import to_json
+    from doabench.files import to_json
 
     if bool(args.tracker) == bool(args.task):
         raise ConfigError("give exactly one of --tracker or --task")

@@ -15,7 +15,7 @@ import numpy as np
 from doabench.geometry import resolution_text
 from doabench.errors import ConfigError, NotFoundError
 from doabench.features.kinds import EXTRACTOR_KINDS, MAP_KINDS
-from doabench.results.files import atomic_path, write_text
+from doabench.files import atomic_path, write_text
 from doabench.framing import DEFAULT_FS, DEFAULT_WINDOW, FrameSpec
 
 HELP = "compute SRP-PHAT maps, GCC-PHAT or spectrograms of a WAV recording"
@@ -110,7 +110,7 @@ def run(args) -> int:
     if not out.parent.is_dir():
         raise NotFoundError(f"output directory {out.parent} does not exist")
     from doabench.cli.common import check_output_file
-    from doabench.results.files import resolve_output
+    from doabench.files import resolve_output
 
     check_output_file(out, [args.recording, args.array], "--out")
     # A stream (-, /dev/stdout, a FIFO) carries the .npy alone: no sidecar beside a device or a pipe.

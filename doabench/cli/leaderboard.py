@@ -44,7 +44,7 @@ def _command(args: argparse.Namespace) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
-    from doabench.results.leaderboard import build_leaderboards, default_references, stale_files, write_leaderboards
+    from doabench.reporting.leaderboard import build_leaderboards, default_references, stale_files, write_leaderboards
 
     references = list(args.reference or []) or default_references(args.out)
     files = build_leaderboards(args.results, references, command=_command(args))

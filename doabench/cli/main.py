@@ -90,7 +90,7 @@ OUTPUT_OPTIONS = ("out", "plot", "export")
 @contextlib.contextmanager
 def _messages_apart_from_data(args: argparse.Namespace):
     """Print the command's messages on standard error when one of its outputs is standard output."""
-    from doabench.results.files import writes_to_stdout
+    from doabench.files import writes_to_stdout
 
     if any(writes_to_stdout(getattr(args, name, None)) for name in OUTPUT_OPTIONS):
         with contextlib.redirect_stdout(sys.stderr):
@@ -125,7 +125,7 @@ def _stop_signals():
 
 
 def _run(args: argparse.Namespace) -> int:
-    from doabench.results.files import write_error_reason
+    from doabench.files import write_error_reason
 
     try:
         return int(args.func(args) or 0)

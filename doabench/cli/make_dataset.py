@@ -74,7 +74,7 @@ def _kept(args: argparse.Namespace) -> str:
     """The stop message: the finished episodes the journal folder keeps, and how to resume."""
     from doabench.cli.common import command_line
     from doabench.datasets.generate import parts_dir
-    from doabench.results.files import resolve_output
+    from doabench.files import resolve_output
 
     if resolve_output(args.out).stream:
         return f"nothing was written (a stream output keeps no journal); start it again with: {command_line(args)}"

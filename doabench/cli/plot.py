@@ -82,16 +82,16 @@ def _done(paths) -> int:
 
 
 def rmsae_vs_t60(args: argparse.Namespace) -> int:
-    from doabench.results.files import load_results
-    from doabench.results.plots import plot_rmsae_vs_t60
+    from doabench.results.schema import load_results
+    from doabench.reporting.plots import plot_rmsae_vs_t60
 
     runs = [load_results(path) for path in args.results]
     return _done(plot_rmsae_vs_t60(runs, args.out, args.snr, args.metric, args.title))
 
 
 def rmsae_vs_speed(args: argparse.Namespace) -> int:
-    from doabench.results.files import load_results
-    from doabench.results.plots import plot_rmsae_vs_speed
+    from doabench.results.schema import load_results
+    from doabench.reporting.plots import plot_rmsae_vs_speed
 
     runs = [load_results(path) for path in args.results]
     return _done(plot_rmsae_vs_speed(runs, args.out, args.title, sources=args.results))
@@ -99,8 +99,8 @@ def rmsae_vs_speed(args: argparse.Namespace) -> int:
 
 def episode(args: argparse.Namespace) -> int:
     from doabench.geometry import parse_resolution
-    from doabench.results.files import load_results
-    from doabench.results.plots import episode_frames, plot_episode, render_episode
+    from doabench.results.schema import load_results
+    from doabench.reporting.plots import episode_frames, plot_episode, render_episode
 
     import numpy as np
 
@@ -144,7 +144,7 @@ def episode(args: argparse.Namespace) -> int:
 
 def maps(args: argparse.Namespace) -> int:
     from doabench.geometry import parse_resolution
-    from doabench.results.plots import plot_maps, srp_maps
+    from doabench.reporting.plots import plot_maps, srp_maps
 
     resolutions = [parse_resolution(r.strip()) for r in args.resolutions.split(",") if r.strip()]
     if not resolutions:
@@ -176,7 +176,7 @@ def maps(args: argparse.Namespace) -> int:
 
 
 def training(args: argparse.Namespace) -> int:
-    from doabench.results.plots import plot_training, read_training_log
+    from doabench.reporting.plots import plot_training, read_training_log
 
     logs = {}
     for path in args.logs:
@@ -191,6 +191,6 @@ def training(args: argparse.Namespace) -> int:
 def conventions(args: argparse.Namespace) -> int:
     from doabench.arrays import get_array
     from doabench.geometry import parse_resolution
-    from doabench.results.plots import plot_conventions
+    from doabench.reporting.plots import plot_conventions
 
     return _done(plot_conventions(get_array(args.array), parse_resolution(args.resolution), args.out))

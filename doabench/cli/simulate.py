@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from doabench.errors import ConfigError
-from doabench.results.files import apply_umask
+from doabench.files import apply_umask
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -167,7 +167,7 @@ def write_outputs(folder: Path, episode, scene_info: dict) -> None:
     """Write audio.wav, truth.csv and scene.json into ``folder``."""
     from doabench.framing import FrameSpec
     from doabench.recording import float_wav_bytes
-    from doabench.results.files import atomic_path, write_text
+    from doabench.files import atomic_path, write_text
 
     with atomic_path(folder / "audio.wav") as tmp:
         tmp.write_bytes(float_wav_bytes(episode.audio, episode.fs))

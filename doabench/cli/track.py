@@ -124,7 +124,7 @@ def track_figure(times: np.ndarray, directions: np.ndarray, vad: np.ndarray, tit
     from matplotlib.patches import Patch
 
     from doabench.geometry import unit_to_angles
-    from doabench.results.plots import legend_outside
+    from doabench.reporting.plots import legend_outside
 
     el, az = unit_to_angles(directions)
     true_angles = None if truth is None else unit_to_angles(truth)
@@ -156,7 +156,7 @@ def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad:
     """Write :func:`track_figure` to ``path`` (its suffix names the format)."""
     import matplotlib.pyplot as plt
 
-    from doabench.results.files import atomic_path
+    from doabench.files import atomic_path
 
     fig = track_figure(times, directions, vad, title, truth)
     with atomic_path(path) as tmp:
@@ -167,7 +167,7 @@ def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad:
 def main(args: argparse.Namespace) -> int:
     from doabench.arrays import get_array
     from doabench.recording import open_recording
-    from doabench.results.files import atomic_path
+    from doabench.files import atomic_path
     from doabench.trackers.registry import parse_options
 
     # Every output is checked before the work: none may be an input, a folder or unwritable.

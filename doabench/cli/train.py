@@ -133,7 +133,7 @@ def main(args: argparse.Namespace) -> int:
     options = parse_options(args.tracker_opt)
     use_threads(args)
     if args.compact:
-        from doabench.results.files import exclusive_lock
+        from doabench.files import exclusive_lock
         from doabench.training import checkpoint as ckpt
         from doabench.training.trainer import LOCK_NAME
 

@@ -20,7 +20,7 @@ by the kernel even on SIGKILL, with the owner's pid) stops two runs from writing
 the second one gets one line naming the first.
 
 An ``out`` that is a stream (``-``, ``/dev/stdout``, a FIFO: the output rule of
-:mod:`doabench.results.files`) is generated in a temporary folder and written through when
+:mod:`doabench.files`) is generated in a temporary folder and written through when
 complete; such a run keeps no journal, so an interrupted one starts again.
 """
 from __future__ import annotations
@@ -44,7 +44,7 @@ from doabench.datasets.schema import (
 from doabench.envs.registry import get_task_spec
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, InputError
-from doabench.results.files import atomic_path, exclusive_lock, resolve_output
+from doabench.files import atomic_path, exclusive_lock, resolve_output
 
 # Config keys that may differ between shards of one dataset (see merge).
 SHARD_KEYS = ("episodes", "shard")
@@ -247,7 +247,7 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        from doabench.results.files import output_error
+        from doabench.files import output_error
 
         raise output_error(folder, exc) from None
     with journal_lock(folder):
@@ -309,7 +309,7 @@ def _existing_config(out: Path) -> dict[str, Any]:
 
 
 def _check_journal_config(folder: Path, out: Path, config: dict[str, Any]) -> None:
-    from doabench.results.files import write_json
+    from doabench.files import write_json
 
     path = folder / "config.json"
     if path.exists():
@@ -399,7 +399,7 @@ def file_attributes(config: dict[str, Any], spec_dict: dict[str, Any], item_name
     import torch
 
     from doabench._version import __version__
-    from doabench.results.provenance import git_commit
+    from doabench.provenance import git_commit
 
     versions = {"doabench": __version__, "torch": torch.__version__, "numpy": numpy.__version__,
                 "h5py": h5py.__version__, "hdf5": h5py.version.hdf5_version}

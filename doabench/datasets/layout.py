@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from doabench.datasets.schema import EPISODES, SCENE_ATTR_UNITS, describe_dataset, dumps, episode_name
-from doabench.results.files import atomic_path
+from doabench.files import atomic_path
 
 # Arrays smaller than this many bytes are stored contiguous and uncompressed: filters cost more
 # than they save on a few hundred bytes.

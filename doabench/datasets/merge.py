@@ -18,7 +18,7 @@ from doabench.datasets.layout import read_episode
 from doabench.datasets.reader import DatasetFile
 from doabench.datasets.schema import EPISODES, describe_dataset, dumps, episode_name
 from doabench.errors import InputError
-from doabench.results.files import atomic_path
+from doabench.files import atomic_path
 
 MERGE_IGNORED = SHARD_KEYS + ("merged_from",)
 

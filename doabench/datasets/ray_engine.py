@@ -20,7 +20,7 @@ from doabench.datasets.layout import write_part
 from doabench.datasets.schema import FeatureRequest, episode_name
 from doabench.envs.spec import TaskSpec
 from doabench.ray_support import cluster_cpus, ray_session, unwrap
-from doabench.results.files import atomic_path
+from doabench.files import atomic_path
 
 # Tasks queued per actor: one running, one waiting, so an actor never idles between episodes.
 IN_FLIGHT_PER_WORKER = 2

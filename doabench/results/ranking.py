@@ -1,6 +1,6 @@
 """Leaderboard inputs: results files and published reference rows, loaded, checked, grouped by
 task and ranked (the headline: mean of per-recording RMSAEs for LOCATA, else the pooled RMSAE).
-:mod:`doabench.results.leaderboard` renders them as Markdown and CSV.
+:mod:`doabench.reporting.leaderboard` renders them as Markdown and CSV.
 
 Only complete runs (every episode of the task) are ranked; partial runs (``--episodes N``,
 ``--cells``) are kept apart with their coverage. One model is one row: a tracker named by an alias

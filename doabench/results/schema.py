@@ -4,7 +4,8 @@
 dictionary (or a loaded file) against it with ``jsonschema`` (a test dependency; install it with
 ``pip install jsonschema`` to validate in your own code). ``results_problem(data)`` says, without
 ``jsonschema``, why a loaded JSON file is not a results file the leaderboards can read (the same
-answer whatever is installed). docs/results-format.md documents the fields.
+answer whatever is installed). ``load_results(path)`` reads a results file, or says in one line
+why it cannot. docs/results-format.md documents the fields.
 """
 from __future__ import annotations
 
@@ -12,7 +13,10 @@ import functools
 import json
 import math
 from importlib import resources
+from pathlib import Path
 from typing import Any, Sequence
+
+from doabench.errors import InputError
 
 SCHEMA_FILE = "results-1.schema.json"
 #: the sections the leaderboards read, checked by :func:`results_problem`
@@ -47,7 +51,7 @@ def validate_results(results: Any) -> None:
     """Raise ``jsonschema.ValidationError`` if ``results`` does not follow the schema."""
     import jsonschema
 
-    from doabench.results.files import to_json
+    from doabench.files import to_json
 
     data = _nan_to_none(json.loads(to_json(results, indent=None)))  # numpy values -> JSON types, as written
     jsonschema.validate(data, results_schema(), cls=jsonschema.Draft202012Validator)
@@ -94,3 +98,20 @@ def _is_type(value: Any, name: str) -> bool:
     if isinstance(value, bool) and name in ("integer", "number"):
         return False
     return isinstance(value, _JSON_TYPES.get(name, (object,)))
+
+
+def load_results(path: str | Path) -> dict[str, Any]:
+    """A results JSON written by ``doabench run``; a one-line InputError naming the reason otherwise."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"results file {path} does not exist") from None
+    except IsADirectoryError:
+        raise InputError(f"{path} is a folder; give results JSON files") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path} is not valid JSON ({exc})") from None
+    if not (isinstance(data, dict) and str(data.get("schema", "")).startswith("doabench.results/")):
+        raise InputError(f"{path} is not a doabench results file (no doabench.results schema)")
+    return data
+

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 import pandas as pd
 
 from doabench.errors import InputError
-from doabench.results.files import atomic_path, file_stem, write_json
+from doabench.files import atomic_path, file_stem, write_json
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
 from doabench.results.labels import run_label
 

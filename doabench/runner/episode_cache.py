@@ -25,7 +25,7 @@ from doabench.envs.env import DoaEnv
 from doabench.envs.sources import EpisodeSource
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
-from doabench.results.files import atomic_path
+from doabench.files import atomic_path
 
 ENV_VAR = "DOABENCH_EPISODE_CACHE"
 _OPTIONAL = ("sample_valid", "input_vad")

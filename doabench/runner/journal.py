@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 from doabench.errors import InputError
-from doabench.results.files import append_line, exclusive_lock, to_json, write_text
+from doabench.files import append_line, exclusive_lock, to_json, write_text
 
 
 def lock_path(partial_path: str | Path) -> Path:
@@ -27,7 +27,7 @@ def run_lock(partial_path: str | Path) -> Iterator[None]:
     """Exclusive lock of the run writing ``partial_path`` (two runs with the same ``--out``, task
     and tracker would otherwise overwrite each other's journal and results): the second gets one
     line naming the first one's pid. The kernel releases it if the process dies; the lock file is
-    removed when the run ends (:func:`doabench.results.files.exclusive_lock`)."""
+    removed when the run ends (:func:`doabench.files.exclusive_lock`)."""
     with exclusive_lock(lock_path(partial_path), f"{Path(partial_path).parent} for this task and tracker"):
         yield
 

@@ -24,8 +24,8 @@ from doabench.envs.sources import task_identity
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, DoabenchError, TrackerError
 from doabench.geometry import normalize
-from doabench.results.files import to_json
-from doabench.results.provenance import environment
+from doabench.files import to_json
+from doabench.provenance import environment
 from doabench.runner.journal import append_record, config_hash, load_journal
 from doabench.runner.episode_cache import cache_episodes
 from doabench.runner.selection import select_episodes

@@ -26,7 +26,7 @@ from typing import Any, Callable
 import numpy as np
 
 from doabench.errors import ConfigError, InputError, NotFoundError
-from doabench.results.files import atomic_path, write_json
+from doabench.files import atomic_path, write_json
 
 SPLIT_KEYS = {"train": 1_000_001, "val": 1_000_002}
 ITEM_KEYS = ("audio", "signal_power", "vad", "trajectory", "array_position")  # what the items read

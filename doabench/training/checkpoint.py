@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from doabench.errors import InputError, NotFoundError
-from doabench.results.files import atomic_path
+from doabench.files import atomic_path
 
 FORMAT = 2
 LATEST = "checkpoint.safetensors"

@@ -182,7 +182,7 @@ def run_distributed(options, log: Callable[[str], None] = print, timeout_s: floa
         # Every rank has read the run folder (a resume checkpoint, or none) before rank 0 writes it.
         dist.barrier()
         if rank == 0:
-            from doabench.results.files import write_json
+            from doabench.files import write_json
 
             trainer.out.mkdir(parents=True, exist_ok=True)
             write_json(trainer.out / "distributed.json",

@@ -7,7 +7,7 @@ import io
 from pathlib import Path
 from typing import Any
 
-from doabench.results.files import atomic_path, write_text
+from doabench.files import atomic_path, write_text
 
 # The history row keys that log.csv shows, in order (rows hold more, e.g. the epoch's precision).
 CSV_COLUMNS = ("epoch", "phase_snr", "batch_size", "lr", "train_loss", "val_loss", "val_rmsae_all",

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from doabench.errors import ConfigError, InputError
-from doabench.results.files import exclusive_lock, write_json
+from doabench.files import exclusive_lock, write_json
 from doabench.training import checkpoint as ckpt
 from doabench.training import run_state
 from doabench.training.epoch_data import (EpochData, FeatureFn, available_cores, default_features,

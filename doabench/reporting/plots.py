@@ -46,7 +46,7 @@ def output_paths(out: str | Path) -> list[Path]:
 def save_figure(fig, out: str | Path, dpi: int = 110) -> list[Path]:
     """Write ``fig`` as PNG and PDF atomically; returns the paths. Dates are left out of the PDF
     metadata so re-plotting the same data gives the same file."""
-    from doabench.results.files import atomic_path
+    from doabench.files import atomic_path
 
     paths = output_paths(out)
     for path in paths:

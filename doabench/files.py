@@ -442,20 +442,3 @@ def exclusive_lock(path: str | Path, what: str) -> Iterator[None]:
         with contextlib.suppress(OSError):
             os.unlink(path)  # before the unlock: a process that opened it meanwhile sees it is gone
         os.close(fd)
-
-
-def load_results(path: str | Path) -> dict[str, Any]:
-    """A results JSON written by ``doabench run``; a one-line InputError naming the reason otherwise."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"results file {path} does not exist") from None
-    except IsADirectoryError:
-        raise InputError(f"{path} is a folder; give results JSON files") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path} is not valid JSON ({exc})") from None
-    if not (isinstance(data, dict) and str(data.get("schema", "")).startswith("doabench.results/")):
-        raise InputError(f"{path} is not a doabench results file (no doabench.results schema)")
-    return data
-

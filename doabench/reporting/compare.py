@@ -40,7 +40,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from doabench.errors import InputError
-from doabench.results.files import load_results
+from doabench.results.schema import load_results
 from doabench.results.identity import results_task_options
 from doabench.results.labels import run_label
 from doabench.metrics import LAG_MAX_S, LAG_STEP_S, THRESHOLDS_DEG, follows, lag_grid, moves, score_frames
@@ -802,6 +802,6 @@ def forest_figure(comparisons: Sequence[Comparison], metrics: Sequence[str] = ("
 
 def plot_forest(comparisons: Sequence[Comparison], out: str | Path) -> list[Path]:
     """:func:`forest_figure` written as PNG and PDF."""
-    from doabench.results.plots import save_figure
+    from doabench.reporting.plots import save_figure
 
     return save_figure(forest_figure(comparisons), out)

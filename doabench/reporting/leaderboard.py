@@ -21,10 +21,10 @@ from typing import Any, Sequence
 
 from doabench.envs.sources import task_kind
 from doabench.errors import ConfigError
-from doabench.results.distribution import IN, training_distribution
+from doabench.reporting.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, coverage, display_path,
                                       load_references, load_runs, recording_mean)
-from doabench.results.files import file_stem
+from doabench.files import file_stem
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
 from doabench.trackers.registry import available_trackers
 
@@ -155,7 +155,7 @@ def provenance_line(label: str, run: RunFile) -> str:
     return f"- **{label}**: " + "; ".join(bits) + f". Reproduce: `{reproduce_command(r)}`"
 
 
-# -- training distribution of learned trackers (doabench.results.distribution) ---------------------------
+# -- training distribution of learned trackers (doabench.reporting.distribution) ---------------------------
 IN_MARK, OUT_MARK = "in-distribution", "zero-shot"
 
 
@@ -639,7 +639,7 @@ def build_leaderboards(results_dir: str | Path | Sequence[str | Path], reference
 
 def write_leaderboards(files: dict[str, str], out_dir: str | Path) -> list[Path]:
     """Write the files atomically; unchanged files are left untouched (their mtime too)."""
-    from doabench.results.files import write_text
+    from doabench.files import write_text
 
     out_dir = Path(out_dir)
     written = []
