@@ -228,16 +228,40 @@ def bootstrap_ci(per_frame: Sequence[tuple[np.ndarray, np.ndarray]], statistic: 
     return bootstrap_ci_from_sums(sq, n, n_boot, level, seed)
 
 
+def bootstrap_counts(strata: Sequence[np.ndarray], n_episodes: int, n_resamples: int = 1000,
+                     seed: int = 0) -> np.ndarray:
+    """``(n_resamples, n_episodes)``: how often each episode is drawn in each resample, drawing
+    within each stratum (positions in ``strata``) as many episodes as it holds, with replacement.
+
+    The one bootstrap of doabench: a results file's intervals draw from one stratum (every
+    episode), ``doabench compare`` draws within each grid cell (the stratified bootstrap of
+    ``rliable``, Agarwal et al., NeurIPS 2021). A statistic of resample ``r`` is then computed
+    from ``counts[r] @ per_episode_sums``."""
+    rng = np.random.default_rng(seed)
+    counts = np.zeros((n_resamples, n_episodes))
+    base = np.arange(n_resamples)[:, None] * n_episodes
+    for members in strata:
+        members = np.asarray(members, np.int64)
+        draws = members[rng.integers(0, len(members), size=(n_resamples, len(members)))]
+        counts += np.bincount((base + draws).ravel(), minlength=n_resamples * n_episodes).reshape(
+            n_resamples, n_episodes)
+    return counts
+
+
+def _resampled_rms(counts: np.ndarray, sq: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``(n_resamples,)`` pooled RMS of each resample (rows of ``counts``) from per-episode sums."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt((counts @ sq) / (counts @ n))
+
+
 def bootstrap_ci_from_sums(sum_sq: np.ndarray, counts: np.ndarray, n_boot: int = 1000, level: float = 0.95,
                            seed: int = 0) -> tuple[float, float]:
-    """Bootstrap CI of a pooled RMS from per-episode sums of squared errors and frame counts."""
+    """Bootstrap CI of a pooled RMS from per-episode sums of squared errors and frame counts
+    (episodes resampled with replacement, :func:`bootstrap_counts` with one stratum)."""
     sq, n = np.asarray(sum_sq, float), np.asarray(counts, float)
     if sq.size == 0:
         return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, sq.size, size=(n_boot, sq.size))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        values = np.sqrt(sq[idx].sum(1) / n[idx].sum(1))
+    values = _resampled_rms(bootstrap_counts([np.arange(sq.size)], sq.size, n_boot, seed), sq, n)
     if np.all(np.isnan(values)):
         return float("nan"), float("nan")
     lo, hi = np.nanpercentile(values, [(1 - level) / 2 * 100, (1 + level) / 2 * 100])
@@ -254,10 +278,8 @@ def paired_difference_ci(sum_sq_a: np.ndarray, counts_a: np.ndarray, sum_sq_b: n
     sq_a, n_a, sq_b, n_b = (np.asarray(x, float) for x in (sum_sq_a, counts_a, sum_sq_b, counts_b))
     if not (sq_a.shape == n_a.shape == sq_b.shape == n_b.shape) or sq_a.size == 0:
         raise ValueError("paired_difference_ci needs the same, non-empty set of episodes for both trackers")
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, sq_a.size, size=(n_boot, sq_a.size))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        diffs = np.sqrt(sq_a[idx].sum(1) / n_a[idx].sum(1)) - np.sqrt(sq_b[idx].sum(1) / n_b[idx].sum(1))
+    counts = bootstrap_counts([np.arange(sq_a.size)], sq_a.size, n_boot, seed)
+    diffs = _resampled_rms(counts, sq_a, n_a) - _resampled_rms(counts, sq_b, n_b)
     lo, hi = np.nanpercentile(diffs, [(1 - level) / 2 * 100, (1 + level) / 2 * 100])
     return float(np.sqrt(sq_a.sum() / n_a.sum()) - np.sqrt(sq_b.sum() / n_b.sum())), float(lo), float(hi)
 

@@ -137,6 +137,28 @@ def test_paired_difference_ci_cancels_what_the_episodes_share() -> None:
         paired_difference_ci(sq, n, sq[:5], n[:5])
 
 
+def test_one_bootstrap_serves_results_files_and_compare() -> None:
+    """A results file's interval is the one-stratum case of compare's stratified bootstrap: the
+    same draws, the same numbers; compare has no resampler of its own."""
+    import inspect
+
+    import doabench.reporting.compare as cmp
+    from doabench.metrics import bootstrap_ci_from_sums, bootstrap_counts
+
+    assert cmp.bootstrap_counts is bootstrap_counts and "default_rng" not in inspect.getsource(cmp)
+    rng = np.random.default_rng(2)
+    n = rng.integers(40, 120, 30).astype(float)
+    sq = rng.uniform(3.0, 30.0, 30) ** 2 * n
+    counts = bootstrap_counts([np.arange(30)], 30, 1000, seed=0)
+    assert counts.shape == (1000, 30) and np.all(counts.sum(1) == 30)
+    expected = np.percentile(np.sqrt(counts @ sq / (counts @ n)), [2.5, 97.5])
+    assert bootstrap_ci_from_sums(sq, n) == pytest.approx(tuple(expected), rel=1e-12)
+    # stratified: each stratum keeps its own size in every resample
+    strata = [np.arange(0, 10), np.arange(10, 30)]
+    split = bootstrap_counts(strata, 30, 500, seed=3)
+    assert np.all(split[:, :10].sum(1) == 10) and np.all(split[:, 10:].sum(1) == 20)
+
+
 def _arc_truth(n_frames: int, period_s: float, deg_per_s: float) -> np.ndarray:
     from doabench.geometry import angles_to_unit
 

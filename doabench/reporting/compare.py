@@ -43,7 +43,8 @@ from doabench.errors import InputError
 from doabench.results.schema import load_results
 from doabench.results.identity import results_task_options
 from doabench.results.labels import run_label
-from doabench.metrics import LAG_MAX_S, LAG_STEP_S, THRESHOLDS_DEG, follows, lag_grid, moves, score_frames
+from doabench.metrics import (LAG_MAX_S, LAG_STEP_S, THRESHOLDS_DEG, bootstrap_counts, follows, lag_grid, moves,
+                              score_frames)
 
 N_RESAMPLES = 2000
 LEVEL = 0.95
@@ -412,22 +413,7 @@ def silence_metrics(holds: Sequence[int] = ()) -> list[Metric]:
     return out
 
 
-# -- the bootstrap -------------------------------------------------------------------------------------------
-def bootstrap_counts(strata: Sequence[np.ndarray], n_episodes: int, n_resamples: int = N_RESAMPLES,
-                     seed: int = 0) -> np.ndarray:
-    """``(n_resamples, n_episodes)``: how often each episode is drawn in each resample, drawing
-    within each stratum (positions in ``strata``) as many episodes as it holds, with replacement."""
-    rng = np.random.default_rng(seed)
-    counts = np.zeros((n_resamples, n_episodes))
-    base = np.arange(n_resamples)[:, None] * n_episodes
-    for members in strata:
-        members = np.asarray(members, np.int64)
-        draws = members[rng.integers(0, len(members), size=(n_resamples, len(members)))]
-        counts += np.bincount((base + draws).ravel(), minlength=n_resamples * n_episodes).reshape(
-            n_resamples, n_episodes)
-    return counts
-
-
+# -- the compared rows (resampled by doabench.metrics.bootstrap_counts) ------------------------------------
 @dataclass(frozen=True)
 class Row:
     """One compared statistic in one scope (pooled or a cell)."""
