@@ -7,10 +7,13 @@ Modules (docs/models.md describes the architectures and how they match Table I):
 * ``cnn1d``     – ``gcc-cnn1d`` and ``max-cnn1d`` (paper V-A)
 * ``cnn2d``     – ``spec-cnn2d`` (paper V-A)
 * ``seldnet``   – SELDnet DOA-branch replica (paper V-A)
-* ``streaming`` – :class:`StreamingRunner`, one frame in, one direction out
-* ``weights``   – safetensors weight files with checked metadata
-* ``trackers``  – the registered trackers (importing it registers them; doabench finds them
-  through the ``doabench.trackers`` entry points)
+* ``streaming`` – :class:`StreamingRunner`, one frame in, one direction out; a whole episode in chunks
+* ``weights``   – safetensors weight files with checked metadata (:class:`WeightsFile`)
+* ``catalog``   – the shipped weights by name (``paper``, ``moving``) and the default
+* ``hold``      – the hold rule of the causal trackers in long silences
+* ``device``    – the torch device a tracker runs on
+* ``trackers``  – the registered trackers, one module each (importing one registers it; doabench
+  finds them through the ``doabench.trackers`` entry points)
 
 This package uses only doabench's public API (``doabench``, ``doabench.errors`` and
 ``doabench.trackers``), as a third-party plugin would. torch is imported when a tracker is built,

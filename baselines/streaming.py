@@ -51,3 +51,18 @@ class StreamingRunner:
     def cached_frames(self) -> int:
         """Frames held in the caches, over all layers (constant once the stream has started)."""
         return sum(0 if s is None else int(s.shape[2]) for s in self.state)
+
+
+#: frames per forward pass in :func:`stream_episode`: bounds memory on long episodes
+EPISODE_CHUNK = 64
+
+
+def stream_episode(model: nn.Module, x: torch.Tensor, chunk: int = EPISODE_CHUNK) -> torch.Tensor:
+    """A causal model over a whole episode ``x`` (time on axis 2) in chunks of ``chunk`` frames,
+    carrying the streaming state across them: ``(batch, frames, 3)``, equal to the one-pass output."""
+    with torch.inference_mode():
+        state, parts = model.init_state(), []
+        for part in torch.split(x, chunk, dim=2):
+            y, state = model.stream_chunk(part, state)
+            parts.append(y)
+    return torch.cat(parts, dim=1)

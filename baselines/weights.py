@@ -320,3 +320,81 @@ def shipped_resolutions(model_name: str) -> list[tuple[int, int]]:
         except ConfigError:
             continue
     return sorted(found, key=lambda r: (r[0] * r[1], r))
+
+
+class WeightsFile:
+    """One weights file of one model: found (a catalog name, ``default`` or a path), verified
+    (SHA-256 of shipped files, metadata, finite tensors) and described, as one value.
+
+    :meth:`find` reads the metadata only; :meth:`load_into` reads and checks the tensors. The
+    metadata says what the weights were trained for: the frames (:attr:`frame_spec`), the SRP
+    grid (:attr:`resolution`), the array (:attr:`array`), the SRP delays (:attr:`delay_mode`).
+    """
+
+    def __init__(self, path: str | Path, metadata: Mapping[str, Any]) -> None:
+        self.path = Path(path)
+        self.metadata = dict(metadata)
+        self._sha256: str | None = None
+
+    @classmethod
+    def find(cls, model_name: str, resolution: tuple[int, int] | None, weights: str | None) -> WeightsFile | None:
+        """The weights ``weights`` names for ``model_name`` at ``resolution``: None (or ``default``)
+        is the catalog's default (None when it has none), a catalog name is that shipped file,
+        anything else a file path (:func:`catalog.resolve` refuses an unknown name in one line). The
+        file must hold a ``model_name`` model."""
+        from . import catalog
+
+        path = catalog.resolve(model_name, resolution, weights)
+        if path is None and weights is not None:
+            path = Path(str(weights)).expanduser()
+        if path is None:
+            return None
+        found = cls(path, read_metadata(path))
+        found.check(model_name=model_name)
+        return found
+
+    def check(self, **expect: Any) -> None:
+        """:func:`check_metadata` of this file (a ConfigError naming the first mismatch)."""
+        check_metadata(self.metadata, self.path, **expect)
+
+    def check_array(self, array: doabench.MicArray, where: str) -> None:
+        """The array in use must be the trained one (:func:`check_array`)."""
+        check_array(self.metadata, array, where)
+
+    @property
+    def sha256(self) -> str:
+        if self._sha256 is None:
+            self._sha256 = sha256_file(self.path)
+        return self._sha256
+
+    @property
+    def frame_spec(self) -> doabench.FrameSpec:
+        feats = self.metadata.get("features", {})
+        return doabench.FrameSpec(feats["window"], feats["hop"], feats["fs"])
+
+    @property
+    def resolution(self) -> tuple[int, int] | None:
+        text = self.metadata.get("resolution")
+        return parse_resolution(text) if text else None
+
+    @property
+    def array(self) -> doabench.MicArray | None:
+        """The array the weights were trained for (None when the file does not record it)."""
+        entry = self.metadata.get("array")
+        return doabench.MicArray(entry["name"], np.asarray(entry["positions"], dtype=float)) if entry else None
+
+    @property
+    def delay_mode(self) -> str:
+        """The SRP delay mode of the maps the weights were trained on (``nearest`` when unrecorded)."""
+        return (self.metadata.get("features") or {}).get("delay_mode") or "nearest"
+
+    def load_into(self, model: nn.Module, model_name: str) -> None:
+        """Read the tensors (checked: shipped hash, metadata, finite values, keys and shapes) into ``model``."""
+        state, _ = load_weights(self.path, model_name=model_name, frame_spec=self.frame_spec)
+        load_into(model, state, self.path)
+        self._sha256 = sha256_file(self.path)
+
+    def describe(self) -> dict[str, Any]:
+        """What ``describe()`` reports of the weights: the file, the training summary and features."""
+        return {"weights": str(self.path), "training": self.metadata.get("training"),
+                "trained_features": self.metadata.get("features")}

@@ -124,12 +124,6 @@ def tasks_markdown() -> str:
 
 
 # -- trackers ------------------------------------------------------------------------------------------
-def _load_plugins() -> None:
-    """Import the learned baselines when installed, so their trackers register."""
-    with contextlib.suppress(ImportError):
-        import doabench_baselines.trackers  # noqa: F401
-
-
 @contextlib.contextmanager
 def _quiet() -> Iterator[None]:
     """Untrained learned trackers warn when built; the catalogue only needs their structure."""
@@ -177,7 +171,6 @@ def _receptive_field(d: dict[str, Any]) -> str:
 def trackers_markdown() -> str:
     from doabench.trackers.registry import available_trackers
 
-    _load_plugins()
     trackers = available_trackers()
     lines = ["# Tracker catalogue", "", HEADER, "",
              "Every registered tracker (`doabench list trackers`), with what `doabench describe --tracker ID` "

@@ -341,13 +341,10 @@ def training_runs(root: Path = ROOT) -> dict[str, dict[str, Any]]:
 
 def _describe(tracker: str, weights: Path) -> dict[str, Any]:
     """``doabench describe --tracker TRACKER --tracker-opt weights=FILE``."""
-    import contextlib
     import warnings
 
     from doabench.trackers.registry import make_tracker
 
-    with contextlib.suppress(ImportError):
-        import doabench_baselines.trackers  # noqa: F401
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return make_tracker(tracker, weights=str(weights)).describe()

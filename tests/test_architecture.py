@@ -164,10 +164,12 @@ def test_every_package_is_in_the_distribution():
     assert sorted(renamed.values()) == sorted(setup_py["RENAMED_PACKAGES"])
     listed = set(setup_py["packages"](str(ROOT)))
     found = set()
-    for init in [*(ROOT / "doabench").rglob("__init__.py"), ROOT / "baselines" / "__init__.py",
+    for init in [*(ROOT / "doabench").rglob("__init__.py"), *(ROOT / "baselines").rglob("__init__.py"),
                  ROOT / "tasks" / "__init__.py"]:
         folder = init.parent.relative_to(ROOT).as_posix()
-        found.add(renamed.get(folder, folder.replace("/", ".")))
+        top, _, sub = folder.partition("/")
+        found.add(renamed.get(folder) or (f"{renamed[top]}.{sub.replace('/', '.')}" if top in renamed else
+                                          folder.replace("/", ".")))
     assert found == listed, {"missing": sorted(found - listed), "not a package": sorted(listed - found)}
 
 

@@ -11,7 +11,7 @@ import torch
 
 import doabench
 from doabench.errors import ConfigError, TrackerError
-import doabench_baselines.trackers as T
+from doabench_baselines.trackers.cross3d import Cross3DTracker
 
 ROOT = Path(__file__).resolve().parents[1]
 IDS = ("cross3d", "gcc-cnn1d", "max-cnn1d", "spec-cnn2d", "seldnet")
@@ -42,7 +42,7 @@ def test_registered_through_the_public_registry():
     available = doabench.available_trackers()
     for name in IDS:
         assert issubclass(available[name], doabench.Tracker)
-    assert isinstance(_make("cross3d:4x8"), T.Cross3DTracker)
+    assert isinstance(_make("cross3d:4x8"), Cross3DTracker)
 
 
 def test_baselines_import_only_the_public_api():
@@ -81,11 +81,11 @@ def test_cross3d_describe_at_64x128():
 
 def test_untrained_tracker_warns_unless_random_was_asked_for():
     with pytest.warns(UserWarning, match="no trained weights for 32x64 maps"):  # none shipped at 32x64
-        t = T.Cross3DTracker("32x64")
+        t = Cross3DTracker("32x64")
     assert not t.trained and not t.allow_untrained
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        t = T.Cross3DTracker("4x8", weights="random")
+        t = Cross3DTracker("4x8", weights="random")
     assert not t.trained and t.allow_untrained
 
 

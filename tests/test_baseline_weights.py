@@ -12,7 +12,8 @@ import doabench
 from doabench.errors import ConfigError, InputError, NotFoundError
 from doabench_baselines import weights as W
 from doabench_baselines.cross3d import Cross3D
-from doabench_baselines.trackers import Cross3DTracker, MaxCnn1dTracker
+from doabench_baselines.trackers.cross3d import Cross3DTracker
+from doabench_baselines.trackers.max_cnn1d import MaxCnn1dTracker
 
 
 
