@@ -70,8 +70,12 @@ def make_metadata(
     delay_mode: str | None = "nearest",
     model_config: Mapping[str, Any] | None = None,
     training: Mapping[str, Any] | None = None,
+    observations: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The metadata dict of a weight file (see the module docstring)."""
+    """The metadata dict of a weight file (see the module docstring). ``observations``: what the
+    network reads, as ``doabench.ObservationSpec.to_dict()`` writes it (the one stored form that
+    results and ONNX files hold too); ``features`` and ``resolution`` repeat part of it for
+    readers older than it."""
     return {
         "format": FORMAT,
         "model": model_name,
@@ -80,6 +84,7 @@ def make_metadata(
         "array": {"name": array.name, "positions": np.asarray(array.positions, dtype=float).round(6).tolist()},
         "features": {"kinds": list(features), "window": frame_spec.window, "hop": frame_spec.hop,
                      "fs": frame_spec.fs, "delay_mode": delay_mode},
+        **({"observations": dict(observations)} if observations is not None else {}),
         "training": dict(training or {}),
         "parameters": sum(p.numel() for p in model.parameters()),
         "doabench_version": doabench.__version__,
@@ -384,9 +389,21 @@ class WeightsFile:
         return doabench.MicArray(entry["name"], np.asarray(entry["positions"], dtype=float)) if entry else None
 
     @property
+    def observations(self) -> doabench.ObservationSpec:
+        """What the network was trained to read: the file's ``observations`` (the stored
+        ``ObservationSpec``), or for a file older than it, the same read from its ``features`` and
+        ``resolution`` (SRP grid 16x32 where the model reads no map)."""
+        stored = self.metadata.get("observations")
+        if stored:
+            return doabench.ObservationSpec.from_dict(stored)
+        feats = self.metadata.get("features") or {}
+        return doabench.ObservationSpec.of(tuple(feats.get("kinds") or ()), self.resolution, self.frame_spec,
+                                           feats.get("delay_mode") or None)
+
+    @property
     def delay_mode(self) -> str:
         """The SRP delay mode of the maps the weights were trained on (``nearest`` when unrecorded)."""
-        return (self.metadata.get("features") or {}).get("delay_mode") or "nearest"
+        return self.observations.delays
 
     def load_into(self, model: nn.Module, model_name: str) -> None:
         """Read the tensors (checked: shipped hash, metadata, finite values, keys and shapes) into ``model``."""

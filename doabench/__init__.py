@@ -29,6 +29,7 @@ from doabench.envs.sources import EpisodeSource, register_task_kind
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import DoabenchError
+from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 from doabench.trackers import Tracker, available_trackers, hold_in_silences, make_tracker, register_tracker
 from doabench.trackers.base import ResetContext
@@ -116,7 +117,8 @@ def __dir__() -> list[str]:
 available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
-    "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ResetContext",
+    "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ObservationSpec",
+    "ResetContext",
     "TaskSpec", "Tracker", "TrainableTracker", "atomic_path", "available_tasks", "available_trackers", "get_array", "get_task_spec",
     "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",
     "srp_maps", "__version__",

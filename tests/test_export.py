@@ -28,6 +28,7 @@ def test_export_matches_torch_in_onnxruntime(tracker: str, tmp_path: Path, capsy
     tr = doabench.make_tracker(tracker)
     assert meta["doabench_tracker"] == tracker and meta["doabench_weights_sha256"] == tr.weights_hash()
     assert json.loads(meta["doabench_observations"]) == tr.observation_spec.to_dict()  # what the input is made of
+    assert doabench.ObservationSpec.from_dict(json.loads(meta["doabench_observations"])) == tr.observation_spec
     # Independently: a longer episode through onnxruntime gives the tracker's own track() directions.
     feats = example_features(tr, n_frames=20, seed=5)
     x = tr.episode_input(feats)

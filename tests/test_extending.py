@@ -185,3 +185,39 @@ def test_a_plugin_task_kind_runs_and_a_plane_wave_is_found_where_it_comes_from()
         print("ok", round(r["summary"]["rmsae_all"], 2))
     ''')
     assert out.startswith("ok")
+
+
+def test_the_observation_contract_is_one_stored_value(tmp_path):
+    """A tracker declares an ObservationSpec; results, weights and ONNX files store its to_dict(),
+    and each file alone gives it back."""
+    import json
+
+    from doabench_baselines.weights import WeightsFile
+
+    from conftest import ROOT as root
+
+    tracker = doabench.make_tracker("cross3d:16x32", weights="moving")
+    spec = tracker.observation_spec
+    assert ObservationSpec.from_dict(spec.to_dict()) == spec
+    assert doabench.ObservationSpec is ObservationSpec
+    # a results file's features section is the spec (its trained_delays beside it is ignored)
+    results = json.loads((root / "results" / "sim-walk__cross3d_16x32__65934501.json").read_text())
+    assert ObservationSpec.from_dict(results["features"]) == spec
+    # a weights file: the stored spec, or for a file older than it, the same read from its features
+    old = WeightsFile.find("cross3d", (16, 32), "moving")
+    assert "observations" not in old.metadata and old.observations == spec
+    path = tracker.save_weights(tmp_path / "w.safetensors", {"observations": spec.with_delays("exact").to_dict()})
+    saved = WeightsFile(path, __import__("doabench_baselines.weights", fromlist=["x"]).read_metadata(path))
+    assert saved.metadata["observations"] == spec.with_delays("exact").to_dict()
+    assert saved.observations == spec.with_delays("exact") and saved.delay_mode == "exact"
+    # a tracker on those weights declares exact delays, and the trainer trains it on them
+    from doabench.training.protocol import training_observations
+
+    exact = doabench.make_tracker("cross3d:16x32", weights=str(path))
+    assert exact.observation_spec == spec.with_delays("exact")
+    assert training_observations(exact, exact.frame_spec) == spec.with_delays("exact")
+    # the environment observes through the same value
+    env = DoaEnv("sim-demo", **spec.env_options())
+    assert env.observations == spec
+    with pytest.raises(ConfigError, match="not a stored observation spec"):
+        ObservationSpec.from_dict({"kinds": ["srp"]})

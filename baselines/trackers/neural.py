@@ -224,15 +224,18 @@ class NeuralTracker(doabench.Tracker):
     def save_weights(self, path: str | Path, metadata: Mapping[str, Any] | None = None) -> Path:
         """Write the network to a weight file (training protocol: ``save_weights(path, metadata)``).
 
-        The file's metadata is built here (model, resolution, array positions, frames, feature
-        kinds, parameter count, version, date); from ``metadata`` it takes ``training`` (the recipe
-        summary), ``feature_settings.delays`` (SRP delay mode, default ``nearest``) and ``array``
-        (the training array's name or file, whose positions are recorded), and keeps its other
-        keys as they are. The keys built here win over the caller's.
+        The file's metadata is built here (model, resolution, array positions, the observations it
+        reads as :attr:`observation_spec`, parameter count, version, date); from ``metadata`` it takes
+        ``training`` (the recipe summary), the SRP delays it was trained on (``observations.delays``;
+        ``feature_settings.delays`` from trainers older than that; default ``nearest``) and ``array``
+        (the training array's name or file, whose positions are recorded), and keeps its other keys
+        as they are. The keys built here win over the caller's.
         """
         extra = dict(metadata or {})
         training = extra.pop("training", None)
-        delays = (extra.get("feature_settings") or {}).get("delays", extra.pop("delay_mode", "nearest"))
+        trained_on = extra.pop("observations", None) or {}
+        delays = trained_on.get("delays") or (extra.get("feature_settings") or {}).get(
+            "delays", extra.pop("delay_mode", "nearest"))
         array = self._array
         if isinstance(extra.get("array"), str):
             array = doabench.get_array(extra["array"])
@@ -240,7 +243,8 @@ class NeuralTracker(doabench.Tracker):
         config = {"resolution": resolution_text(self._resolution)} if self.uses_resolution else {}
         meta = make_metadata(self.model_name, self.model, array=array, frame_spec=self.frame_spec,
                              features=self.features, resolution=self._resolution, delay_mode=delays,
-                             model_config=config, training=training)
+                             model_config=config, training=training,
+                             observations=self.observation_spec.with_delays(delays).to_dict())
         for key, value in extra.items():
             meta.setdefault(key, value)
         return save_weights(path, self.model, meta)

@@ -36,7 +36,7 @@ from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, InputError
 from doabench.features.kinds import DEFAULT_RESOLUTION, check_kinds
-from doabench.features.plan import ObservationPlan
+from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 from doabench.geometry import fold_to_upper, great_circle_error, parse_resolution
 
@@ -84,8 +84,10 @@ class DoaEnv(gymnasium.Env):
         self.source = make_episode_source(self.spec_task, device=device, **source_options)
         self._cache: OrderedDict[int, tuple[Episode, dict[str, np.ndarray], dict[str, np.ndarray]]] = OrderedDict()
         self._cache_size = max(1, cache_size)
+        #: what this environment observes, as the one value trackers declare and files store
+        self.observations = ObservationSpec(self.features, self.resolution, self.frame_spec, delays)
         # the one pipeline from an episode's audio to its observations, spaces included
-        self.plan = ObservationPlan(self.features, self.array, self.frame_spec, (self.resolution,), delays)
+        self.plan = self.observations.plan(self.array)
         self.observation_space = self.plan.observation_space()
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self._t = 0

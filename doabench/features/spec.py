@@ -9,7 +9,7 @@ so in its results (``features.trained_delays``).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Sequence, cast
+from typing import TYPE_CHECKING, Any, Mapping, Sequence, cast
 
 from doabench.errors import ConfigError
 from doabench.features.kinds import DEFAULT_RESOLUTION, DELAY_MODES, check_kinds
@@ -83,8 +83,26 @@ class ObservationSpec:
                 "frame_spec": self.frame_spec, "spectrogram_frame_spec": self.spectrogram_frame_spec}
 
     def to_dict(self) -> dict[str, Any]:
+        """The one stored form of the spec (a results file's ``features``, a weights file's
+        ``observations``, an ONNX file's ``doabench_observations``); :meth:`from_dict` reads it back."""
         d: dict[str, Any] = {"kinds": list(self.kinds), "resolution": resolution_text(self.resolution),
                              "delays": self.delays, "frame": self.frame_spec.to_dict()}
         if self.spectrogram_frame_spec is not None:
             d["spectrogram_frame"] = self.spectrogram_frame_spec.to_dict()
         return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "ObservationSpec":
+        """The spec :meth:`to_dict` wrote (other keys beside it, such as a results file's
+        ``trained_delays``, are ignored); a one-line ConfigError naming what is missing or wrong."""
+        try:
+            frame = _frame_spec(d["frame"])
+            spectrogram = _frame_spec(d["spectrogram_frame"]) if d.get("spectrogram_frame") else None
+            return cls(tuple(d["kinds"]), d["resolution"], frame, str(d.get("delays") or "nearest"), spectrogram)
+        except (KeyError, TypeError) as exc:
+            raise ConfigError(f"not a stored observation spec (kinds, resolution, delays, frame): missing or "
+                              f"malformed {exc}") from None
+
+
+def _frame_spec(d: Mapping[str, Any]) -> FrameSpec:
+    return FrameSpec(int(d["window"]), int(d["hop"]), int(d["fs"]))

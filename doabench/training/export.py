@@ -11,7 +11,17 @@ from doabench.geometry import resolution_text
 from doabench.errors import ConfigError
 from doabench.training import checkpoint as ckpt
 from doabench.training.losses import describe_loss
-from doabench.training.protocol import check_trainable, feature_options
+from doabench.training.protocol import check_trainable, training_observations
+
+
+def _observations(tracker: Any) -> dict[str, Any]:
+    """``{"observations": spec}`` of what the tracker trained on; empty for a network trained on
+    features doabench does not know (a kind nobody registered, given to the Trainer as its own
+    feature function): no spec describes those."""
+    try:
+        return {"observations": training_observations(tracker, tracker.frame_spec).to_dict()}
+    except ConfigError:
+        return {}
 
 
 def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_id: str | None = None) -> dict[str, Any]:
@@ -27,10 +37,7 @@ def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_i
         "tracker": tracker_id or state["tracker"],
         "resolution": resolution_text(tracker.resolution),
         "array": spec.array,
-        "features": list(tracker.features),
-        "frame": tracker.frame_spec.to_dict(),
-        "feature_settings": {"delays": feature_options(tracker)["delays"],
-                             "maps": "mean removed, divided by the maximum, zero in silent frames"},
+        **_observations(tracker),
         "doabench_version": __version__,
         "torch_version": torch.__version__,
         "training": {

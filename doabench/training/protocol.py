@@ -12,17 +12,19 @@ tracker with :func:`doabench.make_tracker` and trains it through this small prot
     tracker.save_weights(path, metadata)   # safetensors file; metadata["training"] is the
                                            # training record (see doabench.training.export)
 
-Optional (read through :func:`feature_options` and :func:`training_defaults`, nowhere else):
+Optional (read through :func:`training_observations` and :func:`training_defaults`, nowhere else):
 
-* ``tracker.delays``: SRP-PHAT delay mode of its features, ``"nearest"`` (default) or ``"exact"``;
-* ``tracker.spectrogram_frame_spec``: a FrameSpec for its spectrogram when that differs from
-  ``frame_spec`` (default None: the same);
+* ``tracker.observation_spec``: what it reads, as one :class:`~doabench.features.spec.ObservationSpec`
+  (every :class:`doabench.Tracker` declares it: its features, resolution, frames, the SRP delays of
+  its weights, its spectrogram's own frames); a trainable network that is not a Tracker reads its
+  ``features`` on nearest delays;
 * ``tracker.training_defaults`` (dict) with recipe overrides the paper gives for that model, e.g.
   ``{"t60": (0.0, 0.3)}`` for spectrogram models (section V-A); when absent the trainer applies
   that rule itself to trackers reading ``spectrogram``.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
 
 import torch
@@ -70,24 +72,13 @@ def check_trainable(tracker: Any, name: str) -> TrainableTracker:
     return tracker
 
 
-def feature_options(tracker: Any) -> dict[str, Any]:
-    """The optional feature settings a learned tracker declares: ``{"delays": "nearest" | "exact",
-    "spectrogram_frame_spec": FrameSpec | None}`` (defaults when it declares none)."""
-    delays = getattr(tracker, "delays", None) or "nearest"
-    spec = getattr(tracker, "spectrogram_frame_spec", None)
-    if spec is not None and not isinstance(spec, FrameSpec):
-        raise ConfigError(f"tracker {getattr(tracker, 'name', tracker)!r}: spectrogram_frame_spec must be a "
-                          f"doabench.FrameSpec, got {type(spec).__name__}")
-    return {"delays": str(delays), "spectrogram_frame_spec": spec}
-
-
 def training_observations(tracker: Any, frame_spec: FrameSpec) -> ObservationSpec:
-    """What a learned tracker trains on, as one value: its ``features`` on its ``resolution``
-    (16x32 when None), the run's ``frame_spec``, and the delays and spectrogram frames it declares
-    (:func:`feature_options`)."""
-    declared = feature_options(tracker)
-    return ObservationSpec.of(tuple(tracker.features), tracker.resolution, frame_spec, declared["delays"],
-                              declared["spectrogram_frame_spec"])
+    """What a learned tracker trains on, as one value: the :attr:`~doabench.Tracker.observation_spec`
+    it declares, on the run's ``frame_spec``."""
+    declared = getattr(tracker, "observation_spec", None)
+    if not isinstance(declared, ObservationSpec):
+        declared = ObservationSpec.of(tuple(tracker.features), tracker.resolution, frame_spec)
+    return replace(declared, frame_spec=frame_spec)
 
 
 def training_defaults(tracker: Any) -> dict[str, Any]:
