@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml setup.py Makefile
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet "$(TORCH_PIN)" $(if $(TORCH_INDEX_URL),--index-url "$(TORCH_INDEX_URL)")
-	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/pip install --quiet -e ".[test,ray,onnx]"  # the Ray and ONNX tests run in CI too
+	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/pip install --quiet -e ".[test,ray,onnx,torchrir]"  # the Ray, ONNX and torchrir tests run in CI too
 	touch $(STAMP)
 
 demo: setup

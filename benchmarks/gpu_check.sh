@@ -4,13 +4,14 @@
 # It installs doabench into the machine's Python (with the wheels in .whl/ when the machine has no
 # package index), then, each stage under its own time limit and all under GPU_CHECK_BUDGET_S:
 #   (a) the CUDA tests (tests/test_cuda.py: simulator, SRP-PHAT, Cross3D and training against the
-#       CPU) first, and last `pytest -m "not slow"` on the rest, in parallel over the machine's cores,
+#       CPU; tests/test_engines.py: builtin and torchrir on cuda) first, and last `pytest -m "not slow"` on the rest, in parallel over the machine's cores,
 #       with what the budget leaves;
 #   (b) `doabench train --device cuda --preset paper` for cross3d:16x32 on a fixed number of freshly
 #       simulated trajectories, data workers on all cores but one, with nvidia-smi sampled, and the
 #       two rates that bound it (workers / item CPU s, 1 / GPU step s: benchmarks/bench_training.py);
 #   (c) benchmarks/bench_simulation.py and benchmarks/bench_cross3d_latency.py on cuda (and the
-#       simulation on one CPU thread, for the ratio);
+#       simulation on one CPU thread, for the ratio; and torchrir against builtin on cuda where
+#       torchrir is installed);
 #   (d) `doabench run --device cuda` and `--device cpu` on sim-demo with cross3d:16x32, and how far
 #       apart the two results are.
 # Speech comes from a LibriSpeech-layout folder of the embedded clips (doabench.corpora.fixture):
@@ -74,7 +75,7 @@ FIXTURE="$WORK/LibriSpeech"
 "$PY" -c "from doabench.corpora.fixture import write_librispeech_layout as w; w('$FIXTURE', speakers=20)" 2>&1 | tee -a "$LOG"
 
 # (a) tests
-stage pytest-cuda 150 "$PY" -m pytest -p no:cacheprovider -m cuda -v -rs tests/test_cuda.py
+stage pytest-cuda 150 "$PY" -m pytest -p no:cacheprovider -m cuda -v -rs tests/test_cuda.py tests/test_engines.py
 
 # (b) training on the GPU, data workers on the CPU cores
 stage train-costs 90 "$PY" benchmarks/bench_training.py --librispeech "$FIXTURE" --items 10 --trackers cross3d:16x32 \
@@ -96,6 +97,14 @@ stage bench-simulation-cuda-turn 60 "$PY" benchmarks/bench_simulation.py --devic
     --family turn --json "$WORK/sim_cuda_turn.json"
 stage bench-simulation-cpu 60 "$PY" benchmarks/bench_simulation.py --device cpu --threads 1 --scenes 10 \
     --pra-scenes 0 --json "$WORK/sim_cpu.json"
+# torchrir (the optional extra; its wheel in .whl/ where the machine has no package index) and the
+# builtin engine on the same scenes, both on cuda
+if "$PY" -c "import torchrir" 2>/dev/null; then
+    stage bench-simulation-torchrir-cuda 90 "$PY" benchmarks/bench_simulation.py --device cuda --scenes 5 \
+        --pra-scenes 0 --torchrir-scenes 5 --json "$WORK/sim_torchrir_cuda.json"
+else
+    say "== bench-simulation-torchrir-cuda: skipped, torchrir is not installed (pip install \"doabench[torchrir]\")"
+fi
 stage bench-latency-cuda 60 "$PY" benchmarks/bench_cross3d_latency.py --device cuda --threads 1 --frames 200 \
     --json "$WORK/latency_cuda.json"
 
@@ -165,6 +174,9 @@ if log.is_file():
         figures["train"]["bound"] = bound
 sims = {k: load(f"sim_{k}.json") for k in ("cuda", "cuda_turn", "cpu")}
 figures["simulation"] = {k: v["summary"]["builtin"] for k, v in sims.items() if v}
+torchrir_sim = load("sim_torchrir_cuda.json")
+if torchrir_sim:  # builtin and torchrir on the same scenes, on cuda
+    figures["simulation_torchrir_cuda"] = torchrir_sim["summary"]
 lat = load("latency_cuda.json")
 if lat:
     figures["latency_cuda"] = [{k: r[k] for k in ("resolution", "wall_median_ms", "wall_p90_ms")} for r in lat["rows"]]

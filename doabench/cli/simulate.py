@@ -41,7 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --task: re-create that task's episode N exactly (its seed, speech and array)")
     p.add_argument("--duration", type=float, default=None,
                    help="seconds of audio (default 20, or the task's); the trajectory keeps its points per second")
-    p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
+    p.add_argument("--backend", default="builtin",
+                   help="room simulator: builtin, pyroomacoustics, pyroomacoustics-full, torchrir or gpurir")
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu)")
     p.add_argument("--librispeech", help="LibriSpeech path (default: $DOABENCH_LIBRISPEECH, else embedded speech)")
     p.add_argument("--subset", help="LibriSpeech subset (default: the task's; without --task the only subset "

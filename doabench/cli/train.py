@@ -51,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="run folder: checkpoints, log.csv, loss.png")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--librispeech", help="LibriSpeech root holding train-clean-100 (default: $DOABENCH_LIBRISPEECH)")
-    p.add_argument("--backend", default="builtin", help="room simulator: builtin, pyroomacoustics or gpurir")
+    p.add_argument("--backend", default="builtin",
+                   help="room simulator: builtin, pyroomacoustics, pyroomacoustics-full, torchrir or gpurir")
     p.add_argument("--cache-root", default="runs/cache", help="folder of trajectory caches (default: runs/cache)")
     p.add_argument("--dataset", metavar="FILE",
                    help="train from a dataset file made by `doabench make-dataset` (stored features) instead")

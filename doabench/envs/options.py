@@ -27,7 +27,7 @@ class SimulatedOptions:
         "flag": "--librispeech", "help": "LibriSpeech root (default: $DOABENCH_LIBRISPEECH)"})
     backend: str = field(default="builtin", metadata={
         "flag": "--backend", "cli_default": "builtin",
-        "help": "room simulator: builtin, pyroomacoustics, gpurir or a plug-in's"})
+        "help": "room simulator: builtin, pyroomacoustics, pyroomacoustics-full, torchrir, gpurir or a plug-in's"})
     device: str | None = field(default=None, metadata={"flag": "--device", "help": "cpu or cuda (default cpu)"})
     # scene-distribution fields replaced in every cell (e.g. {"duration_s": 3} for quick checks);
     # results record it, and it changes the episodes

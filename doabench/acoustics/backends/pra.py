@@ -80,10 +80,16 @@ class PyroomacousticsSimulator(TorchBackend):
 
     def early_part(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, layout) -> np.ndarray:
         """pyroomacoustics' image-source responses ``(S, M, n_early)`` float32 (our conventions)."""
+        return self.render(room, sources, mics, fs, layout.n_early, self.max_order(room, layout, fs))
+
+    def render(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, n_out: int, order: int) -> np.ndarray:
+        """pyroomacoustics' image-source responses ``(S, M, n_out)`` float32 to reflection order
+        ``order``, in doabench's conventions (arrival at ``r / c``, amplitude ``1 / (4 pi r)``),
+        from ``sources`` ``(S, 3)`` to ``mics`` ``(M, 3)`` or ``(S, M, 3)``; walls absorb
+        ``1 - beta**2`` of the energy with doabench's reflection coefficients ``beta``."""
         S, M = len(sources), mics.shape[-2]
-        early = np.zeros((S, M, layout.n_early), dtype=np.float32)
+        early = np.zeros((S, M, n_out), dtype=np.float32)
         beta = room.reflection_coefficients()
-        order = self.max_order(room, layout, fs)
         # A moving array (mics (S, M, 3)): one room per point, each with that point's microphones.
         per_room = 1 if mics.ndim == 3 else self.SOURCES_PER_ROOM
         with self._constants() as pra:
@@ -102,13 +108,13 @@ class PyroomacousticsSimulator(TorchBackend):
                 shoebox.compute_rir()
                 for m in range(M):
                     for k in range(len(chunk)):
-                        h = np.asarray(shoebox.rir[m][k][shift : shift + layout.n_early])
+                        h = np.asarray(shoebox.rir[m][k][shift : shift + n_out])
                         early[s0 + k, m, : len(h)] = h / (4 * math.pi)
         return early
 
     def rirs_parts(
         self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator, width: int | None = None
-    ) -> engine.RirParts:
+    ) -> engine.RirParts | None:
         src = torch.tensor(sources, device=self.device)
         mic = torch.tensor(mics, device=self.device)
         delays = engine.direct_delays(src, mic, fs)
