@@ -74,7 +74,7 @@ def test_baselines_import_only_the_public_api():
     public = {"doabench"} | {m for m in _top_level_imports(ROOT / "doabench" / "__init__.py")
                              if m.startswith("doabench.")}
     bad = []
-    for path in sorted((ROOT / "baselines").glob("*.py")):
+    for path in sorted((ROOT / "baselines").rglob("*.py")):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             names = ([a.name for a in node.names] if isinstance(node, ast.Import)
                      else [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
