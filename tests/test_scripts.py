@@ -58,3 +58,8 @@ def test_the_moving_talker_ship_check_fails_todays_default(tmp_path, capsys) -> 
     assert "FAIL  sim-walk: pooled lag 0.8 s" in out and "pass  sim-grid: 10.71 against 10.71 deg" in out
     (tmp_path / "sim-fan__cross3d_16x32.json").unlink()
     assert module.main([str(tmp_path)]) == 2
+    # a candidate of another resolution is compared with the paper-recipe reference, never with itself
+    capsys.readouterr()
+    if (results / "sim-grid__cross3d_32x64__16c0f61f.json").is_file():
+        module.main([str(results), "--stem", "cross3d_32x64"])
+        assert "sim-grid: 13.79 against 10.71 deg" in capsys.readouterr().out
