@@ -80,8 +80,8 @@ def test_cross3d_describe_at_64x128():
 
 
 def test_untrained_tracker_warns_unless_random_was_asked_for():
-    with pytest.warns(UserWarning, match="no trained weights for 32x64 maps"):  # none shipped at 32x64
-        t = Cross3DTracker("32x64")
+    with pytest.warns(UserWarning, match="no trained weights for 12x24 maps"):  # none shipped at 12x24
+        t = Cross3DTracker("12x24")
     assert not t.trained and not t.allow_untrained
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -43,7 +43,7 @@ def test_export_matches_torch_in_onnxruntime(tracker: str, tmp_path: Path, capsy
 def test_export_refuses_untrained_and_classical_trackers(tmp_path: Path, capsys) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        assert main(["export", "--tracker", "cross3d:32x64", "--out", str(tmp_path / "a.onnx")]) == 2  # none shipped
+        assert main(["export", "--tracker", "cross3d:12x24", "--out", str(tmp_path / "a.onnx")]) == 2  # none shipped
     assert "no trained weights" in capsys.readouterr().err
     assert main(["export", "--tracker", "srp-max", "--out", str(tmp_path / "b.onnx")]) == 2
     assert "no neural network to export" in capsys.readouterr().err

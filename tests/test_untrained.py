@@ -15,7 +15,7 @@ from doabench.errors import ConfigError
 
 from conftest import QUICK_SCENE
 
-UNTRAINED = "cross3d:32x64"  # no shipped weights for 32x64 maps
+UNTRAINED = "cross3d:12x24"  # no shipped weights for 12x24 maps
 
 
 def _one_line_error(capsys, command: str) -> str:
@@ -31,7 +31,7 @@ def test_run_refuses_an_untrained_model_and_writes_nothing(tmp_path: Path, capsy
         assert main(["run", "--tracker", UNTRAINED, "--task", "sim-demo", "--episodes", "1", "--quiet",
                      "--out", str(out)]) == 2
     err = _one_line_error(capsys, "run")
-    assert "no trained weights for 32x64 maps" in err and "--tracker-opt weights=random" in err
+    assert "no trained weights for 12x24 maps" in err and "--tracker-opt weights=random" in err
     assert not out.exists()  # no results file, no journal, no folder
 
 
@@ -61,7 +61,7 @@ def test_describe_still_shows_an_untrained_model(capsys) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert main(["describe", "--tracker", UNTRAINED]) == 0
-    assert "32x64" in capsys.readouterr().out
+    assert "12x24" in capsys.readouterr().out
 
 
 def test_explicit_random_runs_and_is_marked_untrained(tmp_path: Path) -> None:

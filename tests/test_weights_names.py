@@ -110,7 +110,7 @@ def test_an_unknown_name_lists_the_names_and_a_name_of_another_tracker_says_whos
     assert "\n" not in text and "default, moving, paper, paper-v3" in text
     with pytest.raises(ConfigError) as exc:
         make_tracker("cross3d:4x8", weights="moving")
-    assert "names weights of cross3d:16x32, cross3d:8x16" in str(exc.value)
+    assert "names weights of cross3d:16x32, cross3d:32x64, cross3d:8x16" in str(exc.value)
 
 
 def test_a_file_for_another_resolution_is_refused_before_any_work(tmp_path: Path, capsys) -> None:

@@ -85,7 +85,7 @@ class DoaEnv(gymnasium.Env):
         self._cache: OrderedDict[int, tuple[Episode, dict[str, np.ndarray], dict[str, np.ndarray]]] = OrderedDict()
         self._cache_size = max(1, cache_size)
         #: what this environment observes, as the one value trackers declare and files store
-        self.observations = ObservationSpec(self.features, self.resolution, self.frame_spec, delays)
+        self.observations = ObservationSpec.of(self.features, self.resolution, self.frame_spec, delays)
         # the one pipeline from an episode's audio to its observations, spaces included
         self.plan = self.observations.plan(self.array)
         self.observation_space = self.plan.observation_space()
