@@ -59,8 +59,7 @@ class Registry(Generic[T]):
                  builtins: Mapping[str, T] | None = None, declares_own: bool = False) -> None:
         self.what, self.group, self.declares_own = what, group, declares_own
         self._check = check
-        self._builtins = dict(builtins or {})
-        self._entries: dict[str, T] = dict(self._builtins)
+        self._entries: dict[str, T] = dict(builtins or {})
         self._loading: set[str] = set()  # entry points being loaded: their module may register itself
         self._broken: dict[str, str] = {}
 

@@ -5,6 +5,7 @@ The plug-ins run in subprocesses: a registration is process-wide, and the other 
 list the registered kinds."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -26,7 +27,7 @@ EXAMPLES = ROOT / "docs" / "examples"
 
 def _run(code: str) -> str:
     done = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=ROOT, capture_output=True, text=True,
-                          timeout=300, env={**__import__("os").environ, "PYTHONPATH": f"{EXAMPLES}:{ROOT}"})
+                          timeout=300, env={**os.environ, "PYTHONPATH": f"{EXAMPLES}:{ROOT}"})
     assert done.returncode == 0, done.stderr
     return done.stdout
 
@@ -192,7 +193,7 @@ def test_the_observation_contract_is_one_stored_value(tmp_path):
     and each file alone gives it back."""
     import json
 
-    from doabench_baselines.weights import WeightsFile
+    from doabench_baselines.weights import WeightsFile, read_metadata
 
     from conftest import ROOT as root
 
@@ -207,7 +208,7 @@ def test_the_observation_contract_is_one_stored_value(tmp_path):
     old = WeightsFile.find("cross3d", (16, 32), "moving")
     assert "observations" not in old.metadata and old.observations == spec
     path = tracker.save_weights(tmp_path / "w.safetensors", {"observations": spec.with_delays("exact").to_dict()})
-    saved = WeightsFile(path, __import__("doabench_baselines.weights", fromlist=["x"]).read_metadata(path))
+    saved = WeightsFile(path, read_metadata(path))
     assert saved.metadata["observations"] == spec.with_delays("exact").to_dict()
     assert saved.observations == spec.with_delays("exact") and saved.delay_mode == "exact"
     # a tracker on those weights declares exact delays, and the trainer trains it on them

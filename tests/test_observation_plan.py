@@ -1,7 +1,10 @@
 """ObservationPlan: the one list of kinds, names and dataset paths, spaces, and compute() equal to the
 FeatureExtractor; DoaEnv and make-dataset's EpisodeComputer compute through it."""
+import dataclasses
+
 import numpy as np
 import pytest
+import torch
 from gymnasium import spaces
 
 import doabench
@@ -23,6 +26,7 @@ from doabench.features.kinds import (
 )
 from doabench.features.plan import framed_audio
 from doabench.framing import FrameSpec
+
 
 SPEC = FrameSpec(1024)
 
@@ -150,3 +154,47 @@ def test_unknown_environment_kind_message():
     with pytest.raises(ConfigError, match=r"unknown feature kind\(s\) \['mfcc'\]; choose from srp, srp_max, gcc, "
                                           r"spectrogram, audio"):
         DoaEnv("sim-demo", features=("srp", "mfcc"))
+
+
+def test_each_kind_computes_itself_from_one_shared_stft(monkeypatch):
+    """The extractor asks each kind's own ``compute`` (no branching on names): every computed kind
+    declares one, a pass takes one STFT on each frame grid whatever the kinds, and a kind on its own
+    frames (the spectrogram) is computed on the second grid with its VAD."""
+    from doabench.features import functional as F
+    from doabench.features.kinds import BUILTIN_KINDS, FEATURE_KINDS, FeatureKind
+
+    assert all((k.compute is None) == k.framed for k in BUILTIN_KINDS)
+
+    calls = []
+    real = F.stft_frames
+    monkeypatch.setattr(F, "stft_frames", lambda x, window, hop: calls.append(window) or real(x, window, hop))
+    audio, vad = _recording()
+    one_grid = FeatureExtractor("nao", ("srp", "srp_max", "gcc", "spectrogram"), (4, 8), frame_spec=SPEC)
+    out = one_grid(audio, vad)
+    assert calls == [SPEC.window] and set(out) == {"srp", "srp_max", "gcc", "spectrogram", "vad"}
+    calls.clear()
+    own = FrameSpec(512)
+    two_grids = FeatureExtractor("nao", ("gcc", "spectrogram"), frame_spec=SPEC, spectrogram_frame_spec=own)
+    out = two_grids(audio, vad)
+    assert sorted(calls) == [own.window, SPEC.window]
+    assert out["spectrogram"].shape[0] == own.n_frames(audio.shape[1]) == out["spectrogram_vad"].shape[0]
+    assert torch.equal(out["spectrogram"], F.zero_silent(F.spectrogram_features(real(
+        torch.from_numpy(audio)[None], own.window, own.hop)), out["spectrogram_vad"][None])[0])
+
+    # a plug-in kind reading a shared stage gets the same tensor the built-in kind returns
+    monkeypatch.setattr(FEATURE_KINDS, "_entries", dict(FEATURE_KINDS.registered()))  # registered for this test only
+    # and a built-in kind is what its own declaration computes, not a branch on its name
+    gcc = FEATURE_KINDS.get("gcc")
+    FEATURE_KINDS._entries["gcc"] = dataclasses.replace(gcc, compute=lambda s: torch.full_like(s.gcc, 0.5))
+    out = FeatureExtractor("nao", ("gcc",), frame_spec=SPEC)(audio, vad)
+    assert out["vad"].any() and set(out["gcc"][out["vad"]].unique().tolist()) == {0.5}
+    FEATURE_KINDS._entries["gcc"] = gcc
+    FEATURE_KINDS.register("gcc_copy", FeatureKind("gcc_copy", lambda c: (66, 7), compute=lambda s: s.gcc,
+                                                   stages=("gcc",)))
+    out = FeatureExtractor("nao", ("gcc_copy",), frame_spec=SPEC)(audio, vad)
+    assert torch.equal(out["gcc_copy"], FeatureExtractor("nao", ("gcc",), frame_spec=SPEC)(audio, vad)["gcc"])
+    with pytest.raises(ConfigError, match="unknown stage"):
+        FEATURE_KINDS.register("bad", FeatureKind("bad", lambda c: (1,), compute=lambda s: s.maps, stages=("maps",)))
+    with pytest.raises(ConfigError, match="without declaring it"):  # reads the maps, declares no stage
+        FEATURE_KINDS.register("sneaky", FeatureKind("sneaky", lambda c: (4, 8), compute=lambda s: s.maps))
+        FeatureExtractor("nao", ("sneaky",), frame_spec=SPEC)(audio, vad)

@@ -129,8 +129,40 @@ class Steady(doabench.Tracker):
 
 
 LOUDNESS = FeatureKind("loudness", lambda c: (c.array.n_mics,),
-                       compute=lambda audio, frames: frames.pow(2).mean(-1).log10().clamp(min=-12),
+                       compute=lambda stft: stft.frames.pow(2).mean(-1).clamp_min(1e-12).log10(),
                        description="log frame power per microphone")
+
+
+class LoudLinear(doabench.Tracker):
+    """A learned tracker on the plug-in's loudness: one linear layer, trainable by doabench train."""
+
+    features = ("loudness",)
+
+    def __init__(self, spec=None, **options):
+        import torch
+
+        super().__init__(spec, **options)
+        torch.manual_seed(0)
+        self.network = torch.nn.Linear(12, 3)
+
+    @property
+    def frame_spec(self):
+        return doabench.FrameSpec()
+
+    def network_input(self, features):
+        return features["loudness"]  # (B, T, 12)
+
+    def save_weights(self, path, metadata):
+        import json
+        from safetensors.torch import save_file
+
+        save_file(self.network.state_dict(), str(path), metadata={"doabench": json.dumps(metadata)})
+
+    def reset(self, array, **context):
+        pass
+
+    def step(self, observation):
+        return np.array([1.0, 0.0, 0.0])
 '''
 
 
@@ -147,6 +179,7 @@ def _install_plugin(root) -> None:
         steady = steady_plugin:Steady
         broken = broken_plugin:Tracker
         srp-max = steady_plugin:Steady
+        loud-linear = steady_plugin:LoudLinear
 
         [doabench.feature_kinds]
         loudness = steady_plugin:LOUDNESS
@@ -187,3 +220,43 @@ def test_an_installed_plug_in_is_a_peer_and_a_broken_one_is_named_in_one_line(tm
                                "print('loudness' in observation_kinds(), feature_kind('loudness').description)"],
         capture_output=True, text=True, env={**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{ROOT}"}, timeout=300)
     assert kind.stdout.split() == ["True", "log", "frame", "power", "per", "microphone"], kind.stderr
+
+
+@pytest.mark.slow
+def test_an_installed_feature_kind_works_wherever_a_built_in_does(tmp_path):
+    """The installed plug-in's kind, computed by its own compute from the shared STFT context:
+    ``doabench features --kind``, ``make-dataset --features`` and ``train --dataset`` on it."""
+    import h5py
+    import numpy as np
+    import soundfile as sf
+
+    from doabench.corpora.fixture import write_librispeech_layout
+    from doabench.framing import FrameSpec
+
+    _install_plugin(tmp_path)
+    audio = np.random.default_rng(3).normal(0, 0.1, (16000, 12)).astype(np.float32)
+    sf.write(tmp_path / "rec.wav", audio, 16000, subtype="FLOAT")
+    feats = _doabench(tmp_path, "features", "rec.wav", "--array", "nao", "--kind", "loudness", "--out", "loud.npy")
+    assert feats.returncode == 0, feats.stderr
+    spec = FrameSpec()
+    frames = np.lib.stride_tricks.sliding_window_view(audio.T, spec.window, axis=1)[:, ::spec.hop]
+    expected = np.log10((frames.astype(np.float64) ** 2).mean(-1)).T  # (T, 12)
+    assert np.allclose(np.load(tmp_path / "loud.npy"), expected, atol=1e-4)
+    assert '"description": "log frame power per microphone"' in (tmp_path / "loud.json").read_text()
+
+    made = _doabench(tmp_path, "make-dataset", "--task", "sim-demo", "--episodes", "2", "--features",
+                     "loudness,srp:4x8", "--out", "ds.h5", "--quiet")
+    assert made.returncode == 0, made.stderr
+    with h5py.File(tmp_path / "ds.h5") as f:
+        group = f["episodes/000000"]
+        loud, vad = group["features/loudness"][()], group["vad"][()]
+        assert loud.shape == (len(vad), 12) and "features/srp_4x8" in group
+        assert np.isfinite(loud).all() and loud[vad].min() > -12 and not loud[~vad].any()
+
+    corpus = write_librispeech_layout(tmp_path / "LibriSpeech")
+    trained = _doabench(tmp_path, "train", "--tracker", "loud-linear", "--dataset", "ds.h5", "--epochs", "1",
+                        "--epoch-size", "2", "--val-trajectories", "2", "--no-compile", "--librispeech", str(corpus),
+                        "--cache-root", "cache", "--out", "run", "--quiet")
+    assert trained.returncode == 0, trained.stderr
+    assert (tmp_path / "run" / "checkpoint.safetensors").is_file()
+    assert len((tmp_path / "run" / "log.csv").read_text().strip().splitlines()) == 2  # header and epoch 1

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 import doabench
+from doabench.envs.sources import episode_seed
 from doabench.framing import FrameSpec
 from doabench.training.cache import TrajectoryCache, write_item
 from doabench.training.data import CachedItems, collate
@@ -152,7 +153,7 @@ def test_curriculum_switches_snr_batch_and_lr(tmp_path, caches):
 def test_items_add_noise_at_the_phase_snr(caches):
     cache = TrajectoryCache(caches[0])
     items = CachedItems(cache, 6, 7, 0, 3, (20.0, 20.0), FS)
-    rng = np.random.default_rng(__import__("doabench.envs.sources", fromlist=["x"]).episode_seed(7, 0, 1))
+    rng = np.random.default_rng(episode_seed(7, 0, 1))
     clean = cache.load(int(rng.integers(6)))["audio"].astype(np.float32)
     noise = items[1]["audio"].numpy() - clean
     assert 10 * np.log10(0.3 / np.mean(noise**2)) == pytest.approx(20.0, abs=0.1)

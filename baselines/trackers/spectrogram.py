@@ -16,6 +16,8 @@ class SpectrogramTracker(NeuralTracker):
     """A tracker on magnitude and phase spectrograms ``(2 n_mics, window / 2)`` per frame."""
 
     features = ("spectrogram",)
+    #: the paper trains its spectrogram models in rooms with T60 in [0, 0.3] s (section V-A)
+    training_defaults = {"t60": (0.0, 0.3)}
 
     def _spec_shape(self) -> tuple[int, int]:
         return (2 * self._array.n_mics, self.frame_spec.window // 2)

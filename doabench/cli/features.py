@@ -3,7 +3,8 @@
     doabench features REC.wav --array nao --kind srp --resolution 16x32 --out maps.npy
 
 writes ``maps.npy`` (``(frames, ...)`` float32) and ``maps.json`` (settings, array, frame times,
-grid angles in degrees for maps, pairs and lags for GCC). Both are written atomically.
+and what the kind says of its axes: grid angles in degrees for maps, pairs and lags for GCC, ...).
+Both are written atomically. ``--kind`` is any computed kind, a plug-in's included.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import numpy as np
 
 from doabench.geometry import resolution_text
 from doabench.errors import ConfigError, NotFoundError
-from doabench.features.kinds import EXTRACTOR_KINDS, MAP_KINDS
+from doabench.features.kinds import EXTRACTOR_KINDS, FeatureKind, feature_kind
 from doabench.files import atomic_path, write_text
 from doabench.framing import DEFAULT_FS, DEFAULT_WINDOW, FrameSpec
 
@@ -25,7 +26,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("features", help=HELP, description=HELP + ".")
     p.add_argument("recording", metavar="REC.wav", help="multichannel recording (one channel per microphone)")
     p.add_argument("--array", default="nao", help="built-in array name or JSON/YAML array file (default: nao)")
-    p.add_argument("--kind", default="srp", choices=EXTRACTOR_KINDS, help="feature to compute (default: srp)")
+    p.add_argument("--kind", default="srp", help=f"feature to compute: {', '.join(EXTRACTOR_KINDS)} or a plug-in's "
+                                                 "(default: srp)")
     p.add_argument("--resolution", default="16x32", help="SRP grid N_THETAxN_PHI (default: 16x32)")
     p.add_argument("--delays", default="nearest", choices=("nearest", "exact"), help="SRP delay evaluation (default: nearest, as the paper)")
     p.add_argument("--window", type=int, default=DEFAULT_WINDOW, help=f"frame length K in samples (default: {DEFAULT_WINDOW})")
@@ -42,14 +44,23 @@ def read_audio_rate(path: Path) -> int:
     return int(sf.info(str(path)).samplerate)
 
 
-def _sidecar(args, extractor, result, sr: int, resampled: bool) -> dict:
+def computed_kind(name: str) -> FeatureKind:
+    """The registered kind ``name`` if it is computed from a recording, else a one-line error."""
+    kind = feature_kind(name)
+    if kind.compute is None:
+        raise ConfigError(f"feature {kind.name!r} is the recording itself: nothing to compute; choose "
+                          f"{', '.join(EXTRACTOR_KINDS)} or a plug-in kind")
+    return kind
+
+
+def _sidecar(args, kind: FeatureKind, extractor, result, sr: int, resampled: bool) -> dict:
     from doabench._version import __version__
-    from doabench.geometry import grid_angles
 
     # ``result``: the feature array, or anything with its ``shape`` and ``dtype`` (the streamed file's)
-    spec: FrameSpec = extractor.spectrogram_frame_spec if args.kind == "spectrogram" else extractor.frame_spec
+    context = extractor.frame_context()
+    spec: FrameSpec = kind.frames(context)
     meta = {
-        "kind": args.kind,
+        "kind": kind.name,
         "shape": list(result.shape),
         "dtype": str(result.dtype),
         "recording": str(args.recording),
@@ -63,31 +74,9 @@ def _sidecar(args, extractor, result, sr: int, resampled: bool) -> dict:
         "silent_frames": "none zeroed (no VAD given)",
         "doabench_version": __version__,
     }
-    if args.kind in MAP_KINDS:
-        n_theta, n_phi = extractor.resolution
-        el, az = grid_angles(n_theta, n_phi, planar=extractor.array.planar)
-        meta.update(
-            resolution=resolution_text(extractor.resolution),
-            delays=extractor.mode,
-            elevations_deg=np.degrees(el).round(6).tolist(),
-            azimuths_deg=np.degrees(az).round(6).tolist(),
-        )
-        if args.kind == "srp":
-            meta["axes"] = ["frame", "elevation", "azimuth"]
-            meta["normalization"] = "each map minus its mean, divided by its maximum"
-        else:
-            meta["axes"] = ["frame", "channel"]
-            meta["channels"] = ["elevation / elevation span", "(azimuth + 180) / 360"]
-    elif args.kind == "gcc":
-        L = extractor.gcc.max_lag
-        meta.update(axes=["frame", "pair", "lag"], pairs=extractor.array.pairs.tolist(), lags=list(range(-L, L + 1)))
-    else:
-        K = spec.window
-        meta.update(
-            axes=["frame", "channel", "frequency"],
-            channels="magnitude of mics 1..M (each divided by its maximum), then phase/pi of mics 1..M",
-            frequencies_hz=(np.arange(1, K // 2 + 1) * spec.fs / K).tolist(),
-        )
+    if kind.on_grid:
+        meta.update(resolution=resolution_text(extractor.resolution), delays=extractor.mode)
+    meta.update(kind.axes(context) if kind.axes is not None else {"description": kind.description})
     return meta
 
 
@@ -117,6 +106,7 @@ def run(args) -> int:
     sidecar = None if resolve_output(out).stream else out.with_suffix(".json")
     if sidecar is not None:
         check_output_file(sidecar, [args.recording, args.array], "--out (its .json sidecar)")
+    kind = computed_kind(args.kind)
     array = get_array(args.array)
     spec = FrameSpec(args.window, args.hop, args.fs)
     resolution = parse_resolution(args.resolution)
@@ -131,14 +121,14 @@ def run(args) -> int:
     sr, resampled = rec.sr, rec.resampled
     stream = StreamingFeatureExtractor(
         array,
-        kinds=(args.kind,),
+        kinds=(kind.name,),
         resolution=resolution,
         mode=args.delays,
         frame_spec=spec,
         spectrogram_frame_spec=spec,
     )
     extractor = stream.extractor
-    shape = (spec.n_frames(rec.samples), *extractor.feature_shapes()[args.kind])
+    shape = (spec.n_frames(rec.samples), *extractor.feature_shapes()[kind.name])
     result = _Shape(shape, np.dtype(np.float32))
     written = 0
     with atomic_path(out) as tmp:
@@ -147,7 +137,7 @@ def run(args) -> int:
                 np.empty((0,), np.float32)) | {"shape": shape})
             with torch.inference_mode():
                 for x in rec.blocks(BLOCK_SAMPLES):
-                    part = stream.push(torch.from_numpy(x))[args.kind].numpy().astype(np.float32, copy=False)
+                    part = stream.push(torch.from_numpy(x))[kind.name].numpy().astype(np.float32, copy=False)
                     f.write(np.ascontiguousarray(part).tobytes())
                     written += part.shape[0]
         if written != shape[0]:  # the frame count promised in the .npy header (from the file's header)
@@ -158,7 +148,7 @@ def run(args) -> int:
     if sidecar is None:
         print(f"wrote {out} {tuple(result.shape)} (a stream: no .json sidecar)")
         return 0
-    meta = _sidecar(args, extractor, result, sr, resampled)
+    meta = _sidecar(args, kind, extractor, result, sr, resampled)
     write_text(sidecar, json.dumps(meta) + "\n")
     print(f"wrote {out} {tuple(result.shape)} and {sidecar}")
     return 0

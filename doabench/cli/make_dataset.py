@@ -17,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, help="generate episodes 0..N-1 (default: all of the task's)")
     p.add_argument("--features", default="srp:16x32",
                    help="comma-separated: srp:NxM (several resolutions allowed; stores srp_max too), gcc, "
-                        "spectrogram, audio (default srp:16x32)")
+                        "spectrogram, audio or a plug-in's feature kind (default srp:16x32)")
     p.add_argument("--shard", help="K/N: only episodes i with i %% N == K-1 (for cluster array jobs)")
     p.add_argument("--workers", type=int,
                    help="simulation processes (default 1); with --engine ray: Ray workers (default: 1 on a local "

@@ -18,7 +18,7 @@ from doabench.datasets.schema import TRUTH_KEYS, FeatureRequest
 from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, InputError
-from doabench.features.kinds import DEFAULT_RESOLUTION, EXTRACTOR_KINDS, HALF_KINDS, MAP_KINDS, storage_path
+from doabench.features.kinds import DEFAULT_RESOLUTION, MAP_KINDS, feature_kind, storage_path
 from doabench.features.plan import ObservationPlan
 from doabench.framing import FrameSpec
 
@@ -48,10 +48,10 @@ def _map_grid(request: FeatureRequest) -> tuple[int, int]:
 def requests_plan(requests: Sequence[FeatureRequest], array: MicArray, frame_spec: FrameSpec, delays: str = "nearest"
                   ) -> ObservationPlan | None:
     """The observation plan of the computed features of ``requests`` (None when only audio is
-    stored: then nothing is computed): srp and srp_max on every requested srp grid, gcc and
-    spectrogram once."""
+    stored: then nothing is computed): srp and srp_max on every requested srp grid, the other
+    computed kinds (gcc, spectrogram, a plug-in's) once."""
     srp = [_map_grid(r) for r in requests if r.kind in MAP_KINDS]
-    once = tuple(r.kind for r in requests if r.kind in EXTRACTOR_KINDS and r.kind not in MAP_KINDS)
+    once = tuple(r.kind for r in requests if r.kind not in MAP_KINDS and feature_kind(r.kind).compute is not None)
     kinds = (MAP_KINDS if srp else ()) + once
     if not kinds:
         return None
@@ -91,7 +91,7 @@ class EpisodeComputer:
         items = self.plan.compute(audio, sample_vad, array, self.device)
         out: dict[str, np.ndarray] = {}
         for name in self.plan.names():
-            dtype = np.float16 if (self.float16 and name.partition(":")[0] in HALF_KINDS) else np.float32
+            dtype = np.float16 if (self.float16 and feature_kind(name.partition(":")[0]).half) else np.float32
             out[storage_path(name)] = items[name].astype(dtype, copy=False)
         return out
 

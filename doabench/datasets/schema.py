@@ -30,7 +30,16 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from doabench.errors import ConfigError, InputError, NotFoundError
-from doabench.features.kinds import DATASET_KINDS, FEATURES_GROUP, MAP_KINDS, item_name, storage_path
+from doabench.features.kinds import (
+    DATASET_KINDS,
+    FEATURE_KINDS,
+    FEATURES_GROUP,
+    MAP_KINDS,
+    OBSERVATION_KINDS,
+    FeatureKind,
+    item_name,
+    storage_path,
+)
 
 SCHEMA = "doabench.dataset/1"
 SCHEMA_PREFIX = "doabench.dataset/"
@@ -126,7 +135,8 @@ def episode_name(index: int) -> str:
 
 @dataclass(frozen=True)
 class FeatureRequest:
-    """One requested feature: ``kind`` (srp, gcc, spectrogram, audio) and, for srp, ``resolution``."""
+    """One requested feature: ``kind`` (srp, gcc, spectrogram, audio or a plug-in's) and, for srp,
+    ``resolution``."""
 
     kind: str
     resolution: tuple[int, int] | None = None
@@ -145,13 +155,31 @@ class FeatureRequest:
 _RES = re.compile(r"^(\d+)x(\d+)$")
 
 
+def requestable_kind(name: str) -> FeatureKind | None:
+    """The registered kind ``make-dataset --features`` may ask for by ``name`` (a built-in's name in
+    any case, a plug-in's as registered), else None."""
+    builtin = name.lower()
+    found = FEATURE_KINDS.find(builtin if builtin in DATASET_KINDS else name)
+    return found[1] if found is not None and found[1].requestable else None
+
+
+def _request_order(request: FeatureRequest) -> tuple[int, str, tuple[int, int]]:
+    """The files' canonical order: the built-ins' (srp by resolution, gcc, spectrogram, audio), then
+    plug-in kinds by name."""
+    rank = DATASET_KINDS.index(request.kind) if request.kind in DATASET_KINDS else len(DATASET_KINDS)
+    return rank, request.kind, request.resolution or (0, 0)
+
+
 def parse_feature(text: str) -> FeatureRequest:
-    """``"srp:16x32"`` / ``"srp"`` (16x32) / ``"gcc"`` / ``"spectrogram"`` / ``"audio"``."""
-    kind, _, res = text.strip().partition(":")
-    kind = kind.strip().lower()
-    if kind not in DATASET_KINDS:
-        raise ConfigError(f"unknown dataset feature {text!r}; choose from srp:NxM, gcc, spectrogram, audio")
-    if kind != "srp":
+    """``"srp:16x32"`` / ``"srp"`` (16x32) / ``"gcc"`` / ``"spectrogram"`` / ``"audio"`` / a plug-in kind."""
+    name, _, res = text.strip().partition(":")
+    found = requestable_kind(name.strip())
+    if found is None:
+        plugins = [k for k in FEATURE_KINDS.names() if k not in OBSERVATION_KINDS]
+        raise ConfigError(f"unknown dataset feature {text!r}; choose from srp:NxM, gcc, spectrogram, audio"
+                          + "".join(f", {k}" for k in plugins))
+    kind = found.name
+    if not found.on_grid:
         if res:
             raise ConfigError(f"feature {kind!r} takes no resolution, got {text!r}")
         return FeatureRequest(kind)
@@ -164,14 +192,14 @@ def parse_feature(text: str) -> FeatureRequest:
 def parse_features(spec: str | Iterable[str]) -> tuple[FeatureRequest, ...]:
     """A comma-separated list (or a sequence) of features, de-duplicated, in a canonical order.
 
-    The order (srp by resolution, then gcc, spectrogram, audio) makes ``srp:16x32,gcc`` and
-    ``gcc,srp:16x32`` the same generation config.
+    The order (srp by resolution, then gcc, spectrogram, audio, then plug-in kinds by name) makes
+    ``srp:16x32,gcc`` and ``gcc,srp:16x32`` the same generation config.
     """
     items = spec.split(",") if isinstance(spec, str) else list(spec)
     requests = {parse_feature(t) for t in items if str(t).strip()}
     if not requests:
         raise ConfigError("no dataset feature requested; e.g. --features srp:16x32,gcc")
-    return tuple(sorted(requests, key=lambda r: (DATASET_KINDS.index(r.kind), r.resolution or (0, 0))))
+    return tuple(sorted(requests, key=_request_order))
 
 
 def shard_indices(n_episodes: int, shard: tuple[int, int] | None) -> list[int]:

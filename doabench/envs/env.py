@@ -35,7 +35,7 @@ from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, InputError
-from doabench.features.kinds import DEFAULT_RESOLUTION, check_kinds
+from doabench.features.kinds import DEFAULT_RESOLUTION, check_kinds, own_frame_kinds
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 from doabench.geometry import fold_to_upper, great_circle_error, parse_resolution
@@ -75,9 +75,10 @@ class DoaEnv(gymnasium.Env):
         if self.frame_spec.fs != self.spec_task.frames.fs:
             raise ConfigError(f"task {self.spec_task.id!r} runs at {self.spec_task.frames.fs} Hz, "
                               f"not {self.frame_spec.fs} Hz")
-        if spectrogram_frame_spec not in (None, self.frame_spec) and "spectrogram" in self.features:
+        own = own_frame_kinds(self.features)
+        if spectrogram_frame_spec not in (None, self.frame_spec) and own:
             raise ConfigError(f"the environment frames every observation on one grid ({self.frame_spec.to_dict()}); "
-                              f"a spectrogram on its own frames ({spectrogram_frame_spec.to_dict()}) has another "
+                              f"{', '.join(own)} on its own frames ({spectrogram_frame_spec.to_dict()}) has another "
                               "number of frames: compute it with an ObservationPlan instead")
         self.device = device
         self.array: MicArray = get_array(self.spec_task.array)

@@ -22,6 +22,7 @@ _EXPORTS = {
     "StreamingFeatureExtractor": "streaming",
     "ObservationPlan": "plan",
     "ObservationSpec": "spec",
+    "STFTContext": "context",
     "FeatureKind": "kinds",
     "FrameContext": "kinds",
     "register_feature_kind": "kinds",

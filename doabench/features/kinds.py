@@ -2,16 +2,20 @@
 
 Each kind is a :class:`FeatureKind` (lhotse's feature extractors and torchaudio's transforms are
 the models): its name, the shape and Gymnasium bounds of one frame, where a dataset file keeps it
-and in what precision, and, for a kind added by a plug-in, how to compute it. The built-in kinds
-(srp, srp_max, gcc, spectrogram, audio) are computed by :class:`~doabench.features.FeatureExtractor`
-(they share one STFT); a plug-in kind brings its own batched ``compute`` and is registered with
+and in what precision, what its axes hold, which frames it is computed on, and how it computes
+itself from the shared STFT context of one extractor pass
+(:class:`~doabench.features.context.STFTContext`: the spectra, their PHAT whitening, the GCC and
+the SRP maps, each computed once for every kind that reads it). The built-in kinds (srp, srp_max,
+gcc, spectrogram, audio) are declared here like a plug-in's, which is registered with
 :func:`register_feature_kind` or declared in the ``doabench.feature_kinds`` entry-point group
-(docs/extending.md). The environment, make-dataset, ``track``, the trainer and the plots all read
-kinds through :class:`~doabench.features.plan.ObservationPlan`, which asks this registry.
+(docs/extending.md). The environment, make-dataset, ``track``, ``features``, the trainer and the
+plots all read kinds through :class:`~doabench.features.plan.ObservationPlan` and
+:class:`~doabench.features.FeatureExtractor`, which ask this registry.
 
 Kept apart from :mod:`doabench.features.plan` (which computes them) so that the transforms, the
 dataset schema and the environment can read the kinds without importing torch or the plan, and
-without an import cycle (the plan imports the transforms, the transforms import this module).
+without an import cycle (the plan imports the transforms, the transforms import this module). The
+built-in kinds' ``compute`` only read the context's stages, so this module needs no torch.
 
 Names: an srp or srp_max item carries its grid, ``srp:16x32`` / ``srp_max:16x32``; the other
 kinds are named by the kind alone (``gcc``, ``spectrogram``, ``audio``). In a dataset file an item
@@ -23,9 +27,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Literal, NamedTuple, Sequence
 
+import numpy as np
+
 from doabench.errors import ConfigError
 from doabench.framing import FrameSpec
-from doabench.geometry import parse_resolution, resolution_text
+from doabench.geometry import grid_angles, parse_resolution, resolution_text
 from doabench.plugins import Registry
 
 #: The SRP grid when nothing asks for another one.
@@ -37,6 +43,9 @@ DELAY_MODES = ("nearest", "exact")
 DelayMode = Literal["nearest", "exact"]
 #: Entry-point group of feature kinds added by other packages (``name = "package.module:KIND"``).
 ENTRY_POINT_GROUP = "doabench.feature_kinds"
+#: The shared stages that need tables built once per extractor (pair lags, grid delays): a kind
+#: whose ``compute`` reads ``context.gcc`` declares ``"gcc"``, one reading ``context.maps`` ``"srp"``.
+STAGES = ("gcc", "srp")
 
 
 class FrameContext(NamedTuple):
@@ -53,24 +62,32 @@ class FeatureKind:
     """One observation kind.
 
     ``frame_shape(context)``: the shape of one frame (no batch or frame axis). ``low``/``high``:
-    the bounds of its Gymnasium box (float32). ``on_grid``: computed on an SRP grid, so its name
-    carries the grid (``srp:16x32``). ``framed``: the recording's own samples, framed, not computed.
-    ``half``: make-dataset's ``--float16`` stores it in half precision. ``requestable``: make-dataset
-    ``--features`` may ask for it (srp_max comes with every srp map). ``compute``: for a plug-in kind,
-    ``compute(audio (batch, n_mics, samples) float32 tensor, frame_vad (batch, frames) bool tensor,
-    frame_spec, array) -> (batch, frames, *frame_shape)`` float32 tensor; the features of silent
-    frames are zeroed after it. None for the built-in kinds, which the extractor computes together.
+    the bounds of its Gymnasium box (float32). ``compute(stft)``: the kind from the shared
+    :class:`~doabench.features.context.STFTContext` of one extractor pass, ``(batch, frames,
+    *frame_shape)`` float32 on the context's frames; the features of silent frames are zeroed after
+    it. ``stages``: the shared stages among :data:`STAGES` that ``compute`` reads (their tables are
+    built once per extractor). ``own_frames``: computed on the observations' second frame grid
+    (``ObservationSpec.spectrogram_frame_spec``) when one is given, as the paper's spectrogram models
+    are; otherwise on the main frames. ``on_grid``: computed on an SRP grid, so its name carries the
+    grid (``srp:16x32``). ``framed``: the recording's own samples, framed, not computed (no
+    ``compute``). ``half``: make-dataset's ``--float16`` stores it in half precision.
+    ``requestable``: make-dataset ``--features`` may ask for it (srp_max comes with every srp map).
+    ``axes(context)``: what the axes of one frame hold, for the sidecar of ``doabench features``
+    (``{"axes": [...], ...}``; None: ``description`` alone says it).
     """
 
     name: str
     frame_shape: Callable[[FrameContext], tuple[int, ...]]
     low: float = float("-inf")
     high: float = float("inf")
+    compute: Callable[[Any], Any] | None = None
+    stages: tuple[str, ...] = ()
+    own_frames: bool = False
     on_grid: bool = False
     framed: bool = False
     half: bool = False
     requestable: bool = True
-    compute: Callable[..., Any] | None = None
+    axes: Callable[[FrameContext], dict[str, Any]] | None = None
     description: str = ""
 
     def storage_path(self, resolution: str | None = None) -> str:
@@ -78,6 +95,10 @@ class FeatureKind:
         if self.on_grid:
             return f"{FEATURES_GROUP}/{self.name}_{resolution}"
         return self.name if self.framed else f"{FEATURES_GROUP}/{self.name}"
+
+    def frames(self, context: FrameContext) -> FrameSpec:
+        """The frames this kind is computed on in ``context``."""
+        return (context.spectrogram_frame_spec or context.frame_spec) if self.own_frames else context.frame_spec
 
 
 def _gcc_shape(c: FrameContext) -> tuple[int, ...]:
@@ -88,16 +109,47 @@ def _spectrogram_shape(c: FrameContext) -> tuple[int, ...]:
     return (2 * c.array.n_mics, (c.spectrogram_frame_spec or c.frame_spec).window // 2)
 
 
+def _map_axes(c: FrameContext) -> dict[str, Any]:
+    elevation, azimuth = grid_angles(*c.resolution, planar=bool(c.array.planar))
+    return {"elevations_deg": np.degrees(elevation).round(6).tolist(),
+            "azimuths_deg": np.degrees(azimuth).round(6).tolist()}
+
+
+def _srp_axes(c: FrameContext) -> dict[str, Any]:
+    return {"axes": ["frame", "elevation", "azimuth"], **_map_axes(c),
+            "normalization": "each map minus its mean, divided by its maximum"}
+
+
+def _srp_max_axes(c: FrameContext) -> dict[str, Any]:
+    return {"axes": ["frame", "channel"], **_map_axes(c),
+            "channels": ["elevation / elevation span", "(azimuth + 180) / 360"]}
+
+
+def _gcc_axes(c: FrameContext) -> dict[str, Any]:
+    max_lag = c.array.max_lag(c.frame_spec.fs)
+    return {"axes": ["frame", "pair", "lag"], "pairs": c.array.pairs.tolist(),
+            "lags": list(range(-max_lag, max_lag + 1))}
+
+
+def _spectrogram_axes(c: FrameContext) -> dict[str, Any]:
+    spec = c.spectrogram_frame_spec or c.frame_spec
+    return {"axes": ["frame", "channel", "frequency"],
+            "channels": "magnitude of mics 1..M (each divided by its maximum), then phase/pi of mics 1..M",
+            "frequencies_hz": (np.arange(1, spec.window // 2 + 1) * spec.fs / spec.window).tolist()}
+
+
 BUILTIN_KINDS: tuple[FeatureKind, ...] = (
     # mean removed and divided by the maximum: the maximum is 1, the minimum has no bound
-    FeatureKind("srp", lambda c: tuple(c.resolution), high=1.0, on_grid=True, half=True,
-                description="SRP-PHAT map on the equiangular grid"),
-    FeatureKind("srp_max", lambda c: (2,), low=0.0, high=1.0, on_grid=True, requestable=False,
+    FeatureKind("srp", lambda c: tuple(c.resolution), high=1.0, compute=lambda stft: stft.maps, stages=("srp",),
+                on_grid=True, half=True, axes=_srp_axes, description="SRP-PHAT map on the equiangular grid"),
+    FeatureKind("srp_max", lambda c: (2,), low=0.0, high=1.0, compute=lambda stft: stft.map_maxima,
+                stages=("srp",), on_grid=True, requestable=False, axes=_srp_max_axes,
                 description="normalised elevation and azimuth of the map's maximum"),
     # PHAT-weighted: a mean of unit phasors, so |R| <= 1
-    FeatureKind("gcc", _gcc_shape, low=-1.0, high=1.0, half=True, description="GCC-PHAT of every mic pair"),
-    FeatureKind("spectrogram", _spectrogram_shape, low=-1.0, high=1.0, half=True,
-                description="magnitude and phase spectrogram"),
+    FeatureKind("gcc", _gcc_shape, low=-1.0, high=1.0, compute=lambda stft: stft.gcc, stages=("gcc",), half=True,
+                axes=_gcc_axes, description="GCC-PHAT of every mic pair"),
+    FeatureKind("spectrogram", _spectrogram_shape, low=-1.0, high=1.0, compute=lambda stft: stft.spectrogram,
+                own_frames=True, half=True, axes=_spectrogram_axes, description="magnitude and phase spectrogram"),
     FeatureKind("audio", lambda c: (c.array.n_mics, c.frame_spec.window), framed=True,
                 description="the recording's samples, framed"),
 )
@@ -129,6 +181,10 @@ def _check_plugin_kind(name: str, kind: Any) -> FeatureKind:
     if kind.compute is None or kind.framed or kind.on_grid:
         raise ConfigError(f"feature kind {kind.name!r}: a plug-in kind brings compute() and is neither framed "
                           "nor on the SRP grid")
+    unknown = sorted(set(kind.stages) - set(STAGES))
+    if unknown:
+        raise ConfigError(f"feature kind {kind.name!r} reads unknown stage(s) {unknown}; the shared stages with "
+                          f"tables are {', '.join(STAGES)}")
     return kind
 
 
@@ -156,9 +212,9 @@ def observation_kinds() -> tuple[str, ...]:
     return OBSERVATION_KINDS + tuple(sorted(set(FEATURE_KINDS.names()) - set(OBSERVATION_KINDS)))
 
 
-def is_plugin(name: str) -> bool:
-    """True for a kind a plug-in computes (not one of the extractor's built-ins)."""
-    return name not in OBSERVATION_KINDS
+def own_frame_kinds(kinds: Iterable[str]) -> tuple[str, ...]:
+    """The kinds among ``kinds`` computed on the observations' second frame grid when one is given."""
+    return tuple(k for k in kinds if feature_kind(k).own_frames)
 
 
 def check_kinds(kinds: Iterable[str]) -> tuple[str, ...]:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Mapping, Sequence, cast
 
 from doabench.errors import ConfigError
-from doabench.features.kinds import DEFAULT_RESOLUTION, DELAY_MODES, check_kinds
+from doabench.features.kinds import DEFAULT_RESOLUTION, DELAY_MODES, check_kinds, own_frame_kinds
 from doabench.geometry import resolution_text
 from doabench.framing import FrameSpec
 from doabench.geometry import parse_resolution
@@ -29,7 +29,8 @@ class ObservationSpec:
     ``kinds``: observation kinds (``srp``, ``srp_max``, ``gcc``, ``spectrogram``, ``audio`` or a
     plug-in's); ``resolution``: the SRP grid ``(n_theta, n_phi)``; ``frame_spec``: window, hop and
     sample rate; ``delays``: the SRP delay mode (``nearest``, the paper's, or ``exact``);
-    ``spectrogram_frame_spec``: the spectrogram's own frames when they differ (None: the same).
+    ``spectrogram_frame_spec``: the second frame grid, of the kinds declared ``own_frames`` (the
+    spectrogram), when it differs (None: the same).
     """
 
     kinds: tuple[str, ...]
@@ -68,7 +69,8 @@ class ObservationSpec:
 
     @property
     def separate_spectrogram_grid(self) -> bool:
-        return "spectrogram" in self.kinds and self.spectrogram_frame_spec is not None
+        """True when some kinds (``own_frames``: the spectrogram) are framed on a grid of their own."""
+        return self.spectrogram_frame_spec is not None and bool(own_frame_kinds(self.kinds))
 
     def plan(self, array: "MicArray | str") -> "ObservationPlan":
         """The :class:`~doabench.features.plan.ObservationPlan` computing these observations for ``array``."""

@@ -22,6 +22,7 @@ from doabench.geometry import resolution_text
 from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError, InputError
 from doabench.features import functional as F
+from doabench.features.context import STFTContext
 from doabench.features.kinds import (
     DEFAULT_RESOLUTION,
     DELAY_MODES,
@@ -29,7 +30,8 @@ from doabench.features.kinds import (
     DelayMode,
     FrameContext,
     feature_kind,
-    is_plugin,
+    observation_kinds,
+    own_frame_kinds,
 )
 from doabench.framing import FrameSpec, frame_vad
 from doabench.geometry import SPEED_OF_SOUND, parse_resolution
@@ -245,12 +247,13 @@ class FeatureExtractor(_Transform):
     * ``gcc``: ``(B, T, n_pairs, 2 * max_lag + 1)``
     * ``spectrogram``: ``(B, T_s, 2 * n_mics, K_s // 2)`` on ``spectrogram_frame_spec``'s grid
 
-    and any plug-in kind (:func:`~doabench.features.kinds.register_feature_kind`), computed by its
-    own ``compute`` on the main frame grid, after the built-ins,
+    and any plug-in kind (:func:`~doabench.features.kinds.register_feature_kind`), each computed by
+    its kind's ``compute`` from the pass's shared :class:`~doabench.features.context.STFTContext`
+    (one STFT per frame grid), after the built-ins,
 
     plus ``vad`` ``(B, T)`` bool (frame active when > 2/3 of its samples are). Features of silent
-    frames are zero. When the spectrogram has its own frame spec, ``spectrogram_vad``
-    ``(B, T_s)`` is added for its grid. All features are float32.
+    frames are zero. When kinds on their own frames (``own_frames``: the spectrogram) have a grid of
+    their own, ``spectrogram_vad`` ``(B, T_s)`` is added for it. All features are float32.
     """
 
     def __init__(
@@ -265,13 +268,14 @@ class FeatureExtractor(_Transform):
     ) -> None:
         super().__init__()
         kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
-        plugins = tuple(k for k in kinds if is_plugin(k) and feature_kind(k).compute is not None)
-        unknown = [k for k in kinds if k not in EXTRACTOR_KINDS and k not in plugins]
+        known = set(observation_kinds())
+        computed = [k for k in kinds if k in known and feature_kind(k).compute is not None]
+        unknown = [k for k in kinds if k not in computed]
         if unknown or not kinds:
             raise ConfigError(f"unknown feature kind(s) {unknown or kinds!r}: use some of "
                               f"{', '.join(EXTRACTOR_KINDS)} or a registered plug-in kind")
-        self.plugin_kinds = tuple(dict.fromkeys(plugins))
-        self.kinds = tuple(k for k in EXTRACTOR_KINDS if k in kinds) + self.plugin_kinds
+        builtin = tuple(k for k in EXTRACTOR_KINDS if k in computed)
+        self.kinds = builtin + tuple(dict.fromkeys(k for k in computed if k not in EXTRACTOR_KINDS))
         self.array = get_array(array)
         self.frame_spec = frame_spec
         spec_fs = spectrogram_frame_spec or frame_spec
@@ -281,35 +285,35 @@ class FeatureExtractor(_Transform):
         self.mode = mode
         self.resolution = as_resolution(resolution)
         self.c = float(c)
-        self.srp = SRPPHAT(self.array, self.resolution, frame_spec, mode, True, c) if self._wants_srp else None
-        self.gcc = self.srp.gcc if self.srp else GCCPHAT(self.array, frame_spec, c) if "gcc" in self.kinds else None
-        self.spectrogram = Spectrogram(spec_fs) if "spectrogram" in self.kinds else None
+        stages = {stage for k in self.kinds for stage in feature_kind(k).stages}
+        self.srp = SRPPHAT(self.array, self.resolution, frame_spec, mode, True, c) if "srp" in stages else None
+        self.gcc = self.srp.gcc if self.srp else GCCPHAT(self.array, frame_spec, c) if "gcc" in stages else None
+        own = own_frame_kinds(self.kinds) if spec_fs != frame_spec else ()
+        #: the kinds on the main frames, and those on their own (the second) frame grid
+        self.main_kinds = tuple(k for k in self.kinds if k not in own)
+        self.own_grid_kinds = own
 
     # -- description ---------------------------------------------------------------------------
     @property
-    def _wants_srp(self) -> bool:
-        return "srp" in self.kinds or "srp_max" in self.kinds
-
-    @property
-    def _main_kinds(self) -> tuple[str, ...]:
-        return tuple(k for k in self.kinds if k != "spectrogram")
-
-    @property
     def separate_spectrogram_grid(self) -> bool:
-        """True when the spectrogram is framed differently from the other features."""
-        return "spectrogram" in self.kinds and self.spectrogram_frame_spec != self.frame_spec
+        """True when some kinds (the spectrogram) are framed differently from the other features."""
+        return bool(self.own_grid_kinds)
 
     @property
     def min_samples(self) -> int:
         """Shortest recording that yields at least one frame of every requested kind."""
-        windows = [self.frame_spec.window] if self._main_kinds or not self.separate_spectrogram_grid else []
-        if "spectrogram" in self.kinds:
+        windows = [self.frame_spec.window] if self.main_kinds else []
+        if self.own_grid_kinds:
             windows.append(self.spectrogram_frame_spec.window)
         return max(windows)
 
+    def frame_context(self) -> FrameContext:
+        """What the per-frame shapes and axes of the kinds depend on."""
+        return FrameContext(self.array, self.frame_spec, self.resolution, self.spectrogram_frame_spec)
+
     def feature_shapes(self) -> dict[str, tuple[int, ...]]:
         """Per-frame shape of each output key (without batch and frame axes)."""
-        context = FrameContext(self.array, self.frame_spec, self.resolution, self.spectrogram_frame_spec)
+        context = self.frame_context()
         shapes: dict[str, tuple[int, ...]] = {k: tuple(feature_kind(k).frame_shape(context)) for k in self.kinds}
         shapes["vad"] = ()
         if self.separate_spectrogram_grid:
@@ -324,6 +328,12 @@ class FeatureExtractor(_Transform):
             return torch.ones((batch, spec.n_frames(samples)), dtype=torch.bool, device=device)
         return frame_vad(vad, spec.window, spec.hop)
 
+    def _compute_kinds(self, kinds: tuple[str, ...], x: torch.Tensor, vad: torch.Tensor,
+                       spec: FrameSpec) -> dict[str, torch.Tensor]:
+        """``kinds`` from one shared STFT context of ``x`` on ``spec``, silent frames zeroed."""
+        stft = STFTContext(x, vad, spec, self.array, self.gcc, self.srp)
+        return {k: F.zero_silent(feature_kind(k).compute(stft), vad) for k in kinds}  # type: ignore[misc]
+
     def compute(
         self, x: torch.Tensor, sample_vad: torch.Tensor | None, main: bool = True, separate: bool = True
     ) -> dict[str, torch.Tensor]:
@@ -331,46 +341,20 @@ class FeatureExtractor(_Transform):
         ``(batch, samples)`` bool or None (no checks; see :meth:`forward`).
 
         ``main=False`` skips everything on ``frame_spec``'s grid (``vad`` included) and
-        ``separate=False`` skips a spectrogram on its own grid (used by the streaming extractor).
+        ``separate=False`` skips the kinds on their own grid (used by the streaming extractor).
         """
         B, _, S = x.shape
         out: dict[str, torch.Tensor] = {}
-        fs_main = self.frame_spec
-        vad = self._frame_vad(sample_vad, fs_main, B, S, x.device) if main else None
-        X = None
-        if main and self._main_kinds:
-            X = F.stft_frames(x, fs_main.window, fs_main.hop)
-            W = F.phat(X)
-            gcc = None
-            if "gcc" in self.kinds or (self.srp is not None and self.srp.mode == "nearest"):
-                assert self.gcc is not None  # built for the gcc kind and with every srp
-                gcc = self.gcc.from_phat(W)
-            if self.srp is not None:
-                maps = F.normalize_maps(self.srp.raw_from_phat(W, gcc))
-                if "srp" in self.kinds:
-                    out["srp"] = F.zero_silent(maps, vad)
-                if "srp_max" in self.kinds:
-                    out["srp_max"] = F.zero_silent(F.map_maxima(maps, self.srp.planar), vad)
-            if "gcc" in self.kinds:
-                assert gcc is not None  # computed just above for the gcc kind
-                out["gcc"] = F.zero_silent(gcc, vad)
-            for name in self.plugin_kinds:
-                compute = feature_kind(name).compute
-                assert compute is not None  # plugin_kinds are the kinds that bring one
-                out[name] = F.zero_silent(compute(x, vad, fs_main, self.array), vad)
-        if "spectrogram" in self.kinds:
-            assert self.spectrogram is not None  # built for the spectrogram kind
-            spec = self.spectrogram_frame_spec
-            if self.separate_spectrogram_grid and separate:
-                vad_s = self._frame_vad(sample_vad, spec, B, S, x.device)
-                out["spectrogram"] = self.spectrogram(x, vad_s)
-                out["spectrogram_vad"] = vad_s
-            elif main and not self.separate_spectrogram_grid:
-                if X is None:
-                    X = F.stft_frames(x, spec.window, spec.hop)
-                out["spectrogram"] = self.spectrogram.from_spectra(X, vad)
-        if vad is not None:  # computed exactly when main
+        if main:
+            vad = self._frame_vad(sample_vad, self.frame_spec, B, S, x.device)
+            if self.main_kinds:
+                out.update(self._compute_kinds(self.main_kinds, x, vad, self.frame_spec))
             out["vad"] = vad
+        if separate and self.own_grid_kinds:
+            spec = self.spectrogram_frame_spec
+            vad_s = self._frame_vad(sample_vad, spec, B, S, x.device)
+            out.update(self._compute_kinds(self.own_grid_kinds, x, vad_s, spec))
+            out["spectrogram_vad"] = vad_s
         return {k: out[k] for k in self.feature_shapes() if k in out}
 
     def forward(
@@ -400,6 +384,6 @@ class FeatureExtractor(_Transform):
             d.update(resolution=resolution_text(self.resolution), delays=self.mode)
         if self.gcc is not None:
             d["max_lag"] = self.gcc.max_lag
-        if "spectrogram" in self.kinds:
+        if own_frame_kinds(self.kinds):  # the frames they would take, even when they are the main ones
             d["spectrogram_frame"] = self.spectrogram_frame_spec.to_dict()
         return d

@@ -19,8 +19,8 @@ Optional (read through :func:`training_observations` and :func:`training_default
   its weights, its spectrogram's own frames); a trainable network that is not a Tracker reads its
   ``features`` on nearest delays;
 * ``tracker.training_defaults`` (dict) with recipe overrides the paper gives for that model, e.g.
-  ``{"t60": (0.0, 0.3)}`` for spectrogram models (section V-A); when absent the trainer applies
-  that rule itself to trackers reading ``spectrogram``.
+  ``{"t60": (0.0, 0.3)}`` for its spectrogram models (section V-A: the baselines' spectrogram
+  trackers declare it).
 """
 from __future__ import annotations
 
@@ -82,11 +82,6 @@ def training_observations(tracker: Any, frame_spec: FrameSpec) -> ObservationSpe
 
 
 def training_defaults(tracker: Any) -> dict[str, Any]:
-    """Recipe overrides for this tracker: its own ``training_defaults`` or the paper's rule that
-    spectrogram models train with T60 in [0, 0.3] s (section V-A)."""
+    """Recipe overrides the tracker declares (``training_defaults``), else none."""
     own = getattr(tracker, "training_defaults", None)
-    if isinstance(own, Mapping):
-        return dict(own)
-    if "spectrogram" in tuple(getattr(tracker, "features", ())):
-        return {"t60": (0.0, 0.3)}
-    return {}
+    return dict(own) if isinstance(own, Mapping) else {}

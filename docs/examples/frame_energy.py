@@ -12,11 +12,11 @@ import torch
 from doabench.features import FeatureKind
 
 
-def log_energy(audio: torch.Tensor, frame_vad: torch.Tensor, frame_spec, array) -> torch.Tensor:
-    """``audio (batch, n_mics, samples)`` -> ``(batch, frames, n_mics)``: log10 of each frame's mean square."""
-    frames = audio.unfold(-1, frame_spec.window, frame_spec.hop)  # (batch, n_mics, frames, window)
-    energy = frames.pow(2).mean(-1).clamp_min(1e-12).log10()
-    return energy.transpose(1, 2).contiguous()
+def log_energy(stft) -> torch.Tensor:
+    """``stft``: the pass's shared STFTContext (its framed samples, spectra, GCC, maps, ...) ->
+    ``(batch, frames, n_mics)``: log10 of each frame's mean square."""
+    frames = stft.frames  # (batch, frames, n_mics, window), a view of the recording
+    return frames.pow(2).mean(-1).clamp_min(1e-12).log10()
 
 
 FRAME_ENERGY = FeatureKind(
