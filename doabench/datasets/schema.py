@@ -185,8 +185,8 @@ def parse_feature(text: str) -> FeatureRequest:
         return FeatureRequest(kind)
     m = _RES.match(res.strip() or "16x32")
     if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
-        raise ConfigError(f"bad srp resolution in {text!r}; write it as srp:16x32 (elevations x azimuths)")
-    return FeatureRequest("srp", (int(m.group(1)), int(m.group(2))))
+        raise ConfigError(f"bad {kind} resolution in {text!r}; write it as {kind}:16x32 (elevations x azimuths)")
+    return FeatureRequest(kind, (int(m.group(1)), int(m.group(2))))
 
 
 def parse_features(spec: str | Iterable[str]) -> tuple[FeatureRequest, ...]:
