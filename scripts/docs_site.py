@@ -11,8 +11,10 @@ when a generated page differs from what these sources give now.
 * the headline block of ``docs/index.md``: the benchmark tasks' leaderboards in brief, LOCATA's
   published Table II averages (marked published) and the RMSAE-against-T60 figure;
 * ``<!-- leaderboard: TASK -->`` blocks (a task's table in brief), ``<!-- compare: A.json B.json -->``
-  blocks (``doabench compare``'s verdicts) and ``<!-- results: A.json ... -->`` blocks (results files in
-  brief) in any page, e.g. ``docs/results.md``;
+  blocks (``doabench compare``'s verdicts), ``<!-- results: A.json ... -->`` blocks (results files in
+  brief), ``<!-- motion: ... -->`` blocks (moving talkers) and ``<!-- engines: ... -->`` blocks (the
+  same scenes rendered by several engines: scores, ranks and paired differences) in any page, e.g.
+  ``docs/results.md``;
 * ``docs/model-cards.md``: one card per shipped weights file, from its training record.
 """
 from __future__ import annotations
@@ -282,7 +284,56 @@ def motion_block(files: list[str], root: Path = ROOT) -> str:
     return "\n".join(lines) + "\n"
 
 
-_BLOCK = re.compile(r"(<!-- (leaderboard|compare|results|motion): ([^>]*?) -->\n)(.*?)(<!-- end of \2 -->)", re.S)
+def engines_block(files: list[str], root: Path = ROOT) -> str:
+    """Several trackers' results on renderings of the same scenes by several engines: per tracker
+    and engine, the pooled RMSAE on the scenes the engines share, its rank among the trackers under
+    that engine, and ``doabench compare --by-seed``'s paired difference against the first task's
+    engine (the reference) with its 95 % interval; all frames, then voice-active frames."""
+    from doabench.reporting import compare as cmp
+
+    runs = [cmp.load_run(root / f) for f in files]
+    for run, f in zip(runs, files):
+        run.path = Path(f)
+    tasks = list(dict.fromkeys(str(r.task.get("id")) for r in runs))
+    reference, engines = tasks[0], tasks[1:]
+    by_key = {(str(r.task.get("id")), r.label): r for r in runs}
+    trackers = [r.label for r in runs if str(r.task.get("id")) == reference]
+    engine = {str(r.task.get("id")): str((r.task.get("source") or {}).get("simulator") or "?") for r in runs}
+    missing = [f"{t} on {e}" for t in trackers for e in engines if (e, t) not in by_key]
+    if missing:
+        raise ValueError(f"engines block: no results for {', '.join(missing)}")  # a docs source error
+    lines: list[str] = []
+    for metric, title in (("rmsae_all", "all frames"), ("rmsae_nonsilent", "voice-active frames")):
+        rows = {t: {e: next(r for r in cmp.compare(by_key[(e, t)], by_key[(reference, t)], only=(metric,),
+                                                   by_seed=True).pooled)
+                    for e in engines} for t in trackers}
+        ref_value = {t: rows[t][engines[0]].b for t in trackers}
+
+        def ranks(values: dict[str, float]) -> dict[str, int]:
+            order = sorted(values, key=values.get)  # type: ignore[arg-type]
+            return {t: order.index(t) + 1 for t in values}
+
+        ref_rank = ranks(ref_value)
+        engine_rank = {e: ranks({t: rows[t][e].a for t in trackers}) for e in engines}
+        table = [[f"`{t}`", f"{ref_value[t]:.2f} (#{ref_rank[t]})"]
+                 + [f"{rows[t][e].a:.2f} (#{engine_rank[e][t]}), {cmp._diff_text(rows[t][e])}" for e in engines]
+                 for t in trackers]
+        n = {rows[trackers[0]][e].n_episodes for e in engines}
+        lines += [f"RMSAE over {title} (deg), pooled over the {'/'.join(map(str, sorted(n)))} scenes every engine "
+                  f"rendered; (#k): rank among these trackers under that engine; then the paired difference from "
+                  f"`{reference}` with its 95 % interval:", ""]
+        lines += _table(["tracker"] + [f"`{e}` ({engine[e]})" for e in tasks], table)
+        same = [e for e in engines if engine_rank[e] == ref_rank]
+        moved = [e for e in engines if engine_rank[e] != ref_rank]
+        lines += ["", f"Order kept ({title}): {', '.join(f'`{e}`' for e in same) or 'none'}"
+                  + (f"; changed: {', '.join(f'`{e}`' for e in moved)}." if moved else "."), ""]
+    commands = [f"`doabench compare {by_key[(e, t)].path} {by_key[(reference, t)].path} --by-seed`"
+                for t in trackers[:1] for e in engines]
+    lines += ["Each difference is " + "; ".join(commands) + " (and likewise for every tracker)."]
+    return "\n".join(lines) + "\n"
+
+
+_BLOCK = re.compile(r"(<!-- (leaderboard|compare|results|motion|engines): ([^>]*?) -->\n)(.*?)(<!-- end of \2 -->)", re.S)
 
 
 def with_blocks(page: str, root: Path = ROOT, link: str = "leaderboards/") -> str:
@@ -295,6 +346,8 @@ def with_blocks(page: str, root: Path = ROOT, link: str = "leaderboards/") -> st
             body = "\n".join(brief_table(arg[0], root, link=link)) + "\n"
         elif kind == "motion":
             body = motion_block(arg, root)
+        elif kind == "engines":
+            body = engines_block(arg, root)
         else:
             body = compare_block(arg, root) if kind == "compare" else results_block(arg, root)
         return m.group(1) + body + m.group(5)

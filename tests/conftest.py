@@ -94,6 +94,7 @@ SLOW_TESTS = (
     "tests/test_datasets.py::test_sigkill_mid_run_",
     "tests/test_datasets.py::test_two_shards_merged_",
     "tests/test_run.py::test_check_env_passes_for_every_simulated_task[sim-walk-pra",
+    "tests/test_run.py::test_check_env_passes_for_every_simulated_task[sim-walk-torchrir",
     "tests/test_readme_commands.py::test_demo_writes_only_under_an_ignored_folder",
     "tests/test_extending.py",
     "tests/test_weights_names.py::test_the_catalog_is_what_the_rule_gives",

@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,3 +108,38 @@ def test_model_cards_cover_every_shipped_weights_file() -> None:
     for heading in ("**Benchmark scores**", "**Reproduce**", "| training distribution |", "| validation |",
                     "**Known limits.**"):
         assert heading in cards
+
+
+def test_the_engines_block_ranks_and_pairs_renderings_of_the_same_scenes(tmp_path: Path) -> None:
+    """Two trackers on the same scenes rendered by two engines: each engine's pooled RMSAE on the
+    shared scenes, the trackers' rank under it, the by-seed paired difference from the reference
+    engine, and whether the order held, all computed from the results files."""
+    import json
+
+    site = _docs_gen()._site()
+
+    def results(tracker: str, task: str, simulator: str, errors: list[float], seeds: list[int]) -> str:
+        rows = [{"episode": i, "task": task, "seed": s, "t60": 0.3, "snr": 5.0, "recording": None, "rmsae_all": e,
+                 "rmsae_nonsilent": e, "mae": e, "within_10": 1.0, "azimuth_mae": e, "n_frames": 10,
+                 "n_nonsilent": 8} for i, (e, s) in enumerate(zip(errors, seeds))]
+        name = f"{task}__{tracker}.json"
+        (tmp_path / name).write_text(json.dumps({
+            "schema": "doabench.results/1", "summary": {}, "environment": {}, "scoring": {}, "episodes": rows,
+            "task": {"id": task, "version": 1, "episodes_run": len(rows), "source": {"simulator": simulator}},
+            "tracker": {"id": tracker, "name": tracker}}))
+        return name
+
+    base = [4.0, 6.0, 5.0, 7.0, 6.0, 8.0, 5.0, 9.0, 6.0, 7.0]
+    seeds = list(range(100, 110))
+    files = [results("near", "walk", "builtin", base + [50.0, 50.0], seeds + [998, 999]),  # two scenes not shared
+             results("far", "walk", "builtin", [e + 3 for e in base], seeds),
+             results("near", "walk-other", "other", [e + 5 for e in base], seeds),
+             results("far", "walk-other", "other", [e + 3 for e in base], seeds)]
+    text = site.engines_block(files, tmp_path)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    assert "| tracker | `walk` (builtin) | `walk-other` (other) |" in text and "pooled over the 10 scenes" in text
+    assert f"| `near` | {rms(base):.2f} (#1) | {rms(np.add(base, 5)):.2f} (#2), +" in text
+    assert f"| `far` | {rms(np.add(base, 3)):.2f} (#2) | {rms(np.add(base, 3)):.2f} (#1), +0.00 [+0.00, +0.00] |" in text
+    assert "Order kept (all frames): none; changed: `walk-other`." in text
+    with pytest.raises(ValueError, match="no results for far on walk-other"):
+        site.engines_block(files[:3], tmp_path)
