@@ -284,6 +284,14 @@ def motion_block(files: list[str], root: Path = ROOT) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _on_seeds(run: Any, seeds: set[Any]) -> Any:
+    """``run`` (a :class:`doabench.reporting.compare.Run`) restricted to the episodes of ``seeds``."""
+    from doabench.reporting import compare as cmp
+
+    rows = [row for row in run.rows if row.get("seed") in seeds]
+    return cmp.Run(run.path, {**run.results, "episodes": rows, "frames": None}, run.label)
+
+
 def engines_block(files: list[str], root: Path = ROOT) -> str:
     """Several trackers' results on renderings of the same scenes by several engines: per tracker
     and engine, the pooled RMSAE on the scenes the engines share, its rank among the trackers under
@@ -324,9 +332,18 @@ def engines_block(files: list[str], root: Path = ROOT) -> str:
                   f"`{reference}` with its 95 % interval:", ""]
         lines += _table(["tracker"] + [f"`{e}` ({engine[e]})" for e in tasks], table)
         same = [e for e in engines if engine_rank[e] == ref_rank]
-        moved = [e for e in engines if engine_rank[e] != ref_rank]
-        lines += ["", f"Order kept ({title}): {', '.join(f'`{e}`' for e in same) or 'none'}"
-                  + (f"; changed: {', '.join(f'`{e}`' for e in moved)}." if moved else "."), ""]
+        lines += ["", f"Order kept ({title}): {', '.join(f'`{e}`' for e in same) or 'none'}."]
+        for e in engines:
+            seeds = {row.get("seed") for row in by_key[(e, trackers[0])].rows}
+            swapped = [(t, u) for t in trackers for u in trackers
+                       if ref_rank[t] < ref_rank[u] and engine_rank[e][t] > engine_rank[e][u]]
+            for t, u in swapped:  # is either order more than noise? the pair's paired difference under both
+                under_ref = next(iter(cmp.compare(_on_seeds(by_key[(reference, t)], seeds),
+                                                  _on_seeds(by_key[(reference, u)], seeds), only=(metric,)).pooled))
+                under_e = next(iter(cmp.compare(by_key[(e, t)], by_key[(e, u)], only=(metric,)).pooled))
+                lines.append(f"Swapped under `{e}`: `{t}` − `{u}` is {cmp._diff_text(under_ref)} ({under_ref.verdict}) "
+                             f"under `{reference}` and {cmp._diff_text(under_e)} ({under_e.verdict}) under `{e}`.")
+        lines.append("")
     commands = [f"`doabench compare {by_key[(e, t)].path} {by_key[(reference, t)].path} --by-seed`"
                 for t in trackers[:1] for e in engines]
     lines += ["Each difference is " + "; ".join(commands) + " (and likewise for every tracker)."]
