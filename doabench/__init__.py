@@ -8,6 +8,7 @@ Public API::
     env = gymnasium.make("doabench/sim-demo-v2", features=("srp",), resolution=(16, 32))
     doabench.run(tracker="srp-max", task="sim-demo")                   # scored results dict
     doabench.srp_maps(audio, "nao")    # SRP-PHAT maps + grid angles + argmax directions in one call
+    doabench.SRPPHAT("nao", (64, 128))  # the same maps as a transform built once (tables kept)
     doabench.hold_in_silences(directions, vad, hold)   # the learned trackers' hold rule in silences
 
 What users implement or receive: ``Tracker`` (subclass it) and the ``ResetContext`` its
@@ -15,7 +16,9 @@ What users implement or receive: ``Tracker`` (subclass it) and the ``ResetContex
 protocol a task kind's episode source implements, registered with ``register_task_kind``);
 ``TrainableTracker`` (what ``doabench train`` needs from a learned tracker; it needs torch, which
 is imported only when the name is first used); ``ObservationPlan`` (a recording's per-frame
-observations, names and spaces, as every task computes them; also loaded on first use).
+observations, names and spaces, as every task computes them; also loaded on first use);
+``SRPPHAT`` (the SRP-PHAT transform of ``srp_maps``, built once and called per frame or episode;
+loaded on first use).
 """
 from __future__ import annotations
 
@@ -84,9 +87,9 @@ def run(tracker, task, **kwargs):
 
 
 def __getattr__(name: str) -> Any:
-    """``TrainableTracker``, ``single_threaded``, ``ObservationPlan`` and ``atomic_path`` on first use: ``import
-    doabench`` stays light (the first two's modules import torch; the third's imports gymnasium and
-    builds on torch)."""
+    """``TrainableTracker``, ``single_threaded``, ``ObservationPlan``, ``SRPPHAT`` and ``atomic_path`` on first use: ``import
+    doabench`` stays light (the first two's and SRPPHAT's modules import torch; ObservationPlan's
+    imports gymnasium and builds on torch)."""
     if name == "TrainableTracker":
         from doabench.training.protocol import TrainableTracker
 
@@ -102,6 +105,11 @@ def __getattr__(name: str) -> Any:
 
         globals()[name] = ObservationPlan
         return ObservationPlan
+    if name == "SRPPHAT":  # a transform kept across frames (srp_maps builds one per call)
+        from doabench.features.transforms import SRPPHAT
+
+        globals()[name] = SRPPHAT
+        return SRPPHAT
     if name == "atomic_path":  # the output rule (docs/guarantees.md), for plug-ins that write files
         from doabench.files import atomic_path
 
@@ -111,14 +119,14 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan", "atomic_path", "single_threaded"})
+    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan", "SRPPHAT", "atomic_path", "single_threaded"})
 
 
 available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
     "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ObservationSpec",
-    "ResetContext",
+    "ResetContext", "SRPPHAT",
     "TaskSpec", "Tracker", "TrainableTracker", "atomic_path", "available_tasks", "available_trackers", "get_array", "get_task_spec",
     "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",
     "srp_maps", "__version__",

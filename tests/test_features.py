@@ -22,24 +22,10 @@ from doabench.features import (
 )
 from doabench.framing import FrameSpec, frame_vad
 from doabench.geometry import SPEED_OF_SOUND, grid_spacing_deg, great_circle_error, grid_unit_vectors
+from fixtures.signals import plane_wave
 
 FS = 16000
 NAO = get_array("nao")
-
-
-def plane_wave(directions: np.ndarray, n_samples: int, positions: np.ndarray, rng, fs: int = FS) -> np.ndarray:
-    """White noise arriving as a plane wave from each direction ``(B, 3)`` -> ``(B, n_mics, n)``.
-
-    Delays ``tau_n = -(r_n . u) fs / c`` are applied exactly (and circularly) in the frequency
-    domain; DC and Nyquist are zeroed so the fractional delay keeps the signal real.
-    """
-    s = rng.standard_normal((len(directions), n_samples))
-    S = np.fft.rfft(s, axis=-1)
-    S[:, 0] = S[:, -1] = 0
-    tau = -(directions @ positions.T) * fs / SPEED_OF_SOUND  # (B, M)
-    k = np.arange(S.shape[-1])
-    Xn = S[:, None, :] * np.exp(-2j * np.pi * k * tau[..., None] / n_samples)
-    return np.fft.irfft(Xn, n=n_samples, axis=-1).astype(np.float32)
 
 
 def random_directions(n: int, rng) -> np.ndarray:

@@ -1,12 +1,15 @@
 """``cross3d``: Cross3D (paper IV-B) on SRP-PHAT maps and their maxima."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
+
+import numpy as np
 
 import doabench
 from doabench.errors import ConfigError
 
 from .. import catalog
+from ..refine import MapRefiner, parse_radius, parse_refine
 from ..weights import resolution_text
 from .neural import NeuralTracker
 
@@ -22,6 +25,40 @@ class Cross3DTracker(NeuralTracker):
     model_name = "cross3d"
     features = ("srp", "srp_max")
     uses_resolution = True
+
+    def __init__(self, spec: str | None = None, weights: str | None = None, device: str = "cpu",
+                 seed: int = 0, resolution: str | None = None, array: str | None = None,
+                 hold: str | int = "auto", refine: str = "off", refine_radius: str | float = "auto") -> None:
+        """The :class:`NeuralTracker` options, and ``refine``: ``off`` (the paper's output) or a finer
+        map resolution (``64x128``) whose maximum within ``refine_radius`` degrees (``auto``: one
+        cell of the network's map) replaces the direction on voice-active frames
+        (:mod:`doabench_baselines.refine`)."""
+        fine = parse_refine(refine)
+        super().__init__(spec, weights=weights, device=device, seed=seed, resolution=resolution, array=array, hold=hold)
+        self.options.update(refine=refine, refine_radius=refine_radius)
+        self._refine_grid = fine
+        self._refine_radius = parse_radius(refine_radius, self._resolution, self._array.planar) if fine else None
+        self._refiner: MapRefiner | None = None
+        if fine is not None:
+            self.features = (*type(self).features, "audio")  # the fine map is computed from the frame's audio
+
+    def reset(self, array: doabench.MicArray, **context: Any) -> None:
+        super().reset(array, **context)
+        if self._refine_grid is not None:
+            self._refiner = MapRefiner(array, self._refine_grid, self.frame_spec, self._refine_radius)
+
+    def refine(self, directions: np.ndarray, observations: Mapping[str, np.ndarray]) -> np.ndarray:
+        if self._refine_grid is None:
+            return directions
+        if self._refiner is None:
+            raise ConfigError(f"tracker {self.name!r}: reset(array) before running it (refine needs the array)")
+        return self._refiner.episode(directions, observations)
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d["refine"] = None if self._refine_grid is None else {
+            "resolution": resolution_text(self._refine_grid), "radius_deg": self._refine_radius}
+        return d
 
     def _default_resolution(self) -> tuple[int, int]:
         """The catalog's default resolution for ``cross3d`` (its default rule), else 8x16."""

@@ -278,21 +278,33 @@ class NeuralTracker(doabench.Tracker):
     def check_array_fits(self, array: doabench.MicArray) -> None:
         """Raise ConfigError when the episode's array cannot feed the model's input layer."""
 
+    @property
+    def network_features(self) -> tuple[str, ...]:
+        """The observation kinds the network reads: the class's ``features`` (an instance may read
+        more for what it does after the network, e.g. Cross3D's ``refine`` reads ``audio``)."""
+        return tuple(type(self).features)
+
     def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
         """One observation -> the model's input frame ``(1, *frame_shape)``: the episode path
         with one frame, so both paths build identical inputs."""
-        x = self.network_input({k: self._tensor(observation[k])[None, None] for k in self.features})
+        x = self.network_input({k: self._tensor(observation[k])[None, None] for k in self.network_features})
         return x[:, :, 0]  # drop the time axis (axis 2 in every model)
 
     def episode_input(self, episode: Mapping[str, np.ndarray]) -> torch.Tensor:
         """A whole episode ``{kind: (frames, ...)}`` -> the network's input with batch 1."""
-        return self.network_input({k: self._tensor(episode[k])[None] for k in self.features})
+        return self.network_input({k: self._tensor(episode[k])[None] for k in self.network_features})
+
+    def refine(self, directions: np.ndarray, observations: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The network's directions ``(frames, 3)`` after any post-processing of the model's own, before
+        the hold rule; ``observations``: ``{kind: (frames, ...)}`` of the same frames. None here."""
+        return directions
 
     def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         if self._runner is None:
             return super().step(observation)  # offline model: the base class says to use track()
         y = self._runner.step(self.frame_input(observation))[0]
         direction = self.direction_from_output(y.detach().double().cpu().numpy())
+        direction = self.refine(direction[None], {k: np.asarray(v)[None] for k, v in observation.items()})[0]
         if self._hold is None:
             return direction
         return self._hold.step(direction, bool(np.asarray(observation.get("vad", True))))
@@ -313,6 +325,7 @@ class NeuralTracker(doabench.Tracker):
                 y = self.model(x)
         self._last = _INITIAL_DIRECTION.copy()
         directions = np.stack([self.direction_from_output(v) for v in y[0].to("cpu", torch.float64).numpy()])
+        directions = self.refine(directions, episode)
         return directions if self._hold is None else self._hold.episode(directions, episode["vad"])
 
     def direction_from_output(self, y: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from doabench.features.kinds import (
     own_frame_kinds,
 )
 from doabench.framing import FrameSpec, frame_vad
-from doabench.geometry import SPEED_OF_SOUND, parse_resolution
+from doabench.geometry import SPEED_OF_SOUND, grid_unit_vectors, parse_resolution
 
 # Precompute the exact-mode steering table only below this size; above it the table is rebuilt
 # per grid block on every call (cheap next to the beamformer product for many frames).
@@ -214,6 +214,11 @@ class SRPPHAT(_Transform):
                 steer = F.steering(self.tau, frame_spec.window)
         self.register_buffer("index", index, persistent=False)  # None in exact mode
         self.register_buffer("steer", steer, persistent=False)  # None unless cached
+
+    @property
+    def grid_directions(self) -> np.ndarray:
+        """Unit vectors of the map cells, ``(n_theta, n_phi, 3)`` float64 (the maps' last two axes)."""
+        return grid_unit_vectors(*self.resolution, planar=self.planar)
 
     def raw_from_phat(self, W: torch.Tensor, gcc: torch.Tensor | None = None) -> torch.Tensor:
         """Raw maps from whitened spectra; ``gcc`` (this array's full GCC) is reused if given."""
