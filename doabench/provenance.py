@@ -12,7 +12,7 @@ from typing import Any
 
 def git_commit() -> dict[str, Any]:
     """Commit of the doabench checkout (None outside a git checkout) and whether it had changes."""
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[1]  # doabench/provenance.py -> the checkout
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
                               timeout=10)

@@ -419,3 +419,14 @@ def test_cli_bad_inputs(wav, tmp_path, capsys):
     assert code == 2 and "resolution" in err
     code, _, err = run_cli([path, "--array", tmp_path / "nope.json", "--out", tmp_path / "o.npy"], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1
+
+
+def test_srp_of_one_frame_equals_the_batched_maps():
+    """srp_from_gcc gathers a single frame directly (the streaming case); the maps are those of the
+    batched path."""
+    srp = SRPPHAT(NAO, (32, 64))
+    gcc = torch.randn(2, 4, len(NAO.pairs), 2 * srp.gcc.max_lag + 1)
+    batched = F.srp_from_gcc(gcc, srp.index, 32, 64)
+    one_by_one = torch.stack([torch.cat([F.srp_from_gcc(gcc[b:b + 1, t:t + 1], srp.index, 32, 64)
+                                         for t in range(4)], dim=1)[0] for b in range(2)])
+    torch.testing.assert_close(one_by_one, batched, rtol=1e-5, atol=1e-4)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import copy
 import json
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -72,3 +74,13 @@ def test_the_best_constant_directions_error_is_optional_and_typed() -> None:
     new["episodes"][0]["lag_const_sse"] = "large"
     with pytest.raises(jsonschema.ValidationError):
         validate_results(new)
+
+
+@pytest.mark.skipif(shutil.which("git") is None or not (ROOT / ".git").exists(), reason="needs git and a git checkout")
+def test_results_record_the_commit_of_the_checkout_they_ran_from() -> None:
+    """A results file names the commit it was made with (the checkout doabench is imported from)."""
+    from doabench.provenance import git_commit
+
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True)
+    recorded = git_commit()
+    assert recorded["commit"] == head.stdout.strip() and isinstance(recorded["dirty"], bool)

@@ -262,6 +262,11 @@ def srp_from_gcc(gcc: torch.Tensor, index: torch.Tensor, n_theta: int, n_phi: in
     :func:`nearest_lag_index`. Returns raw maps ``(batch, frames, n_theta, n_phi)``.
     """
     B, T, P, L = gcc.shape
+    if B * T == 1:
+        # One frame (streaming): embedding_bag on a one-column table is 20-40x slower than a
+        # gather of the (n_grid, n_pairs) values (64x128: 19 against 0.5 ms; docs/performance.md).
+        picked = gcc.reshape(P * L).index_select(0, index.to(gcc.device).reshape(-1))
+        return picked.reshape(index.shape).sum(dim=1).reshape(1, 1, n_theta, n_phi)
     table = gcc.reshape(B * T, P * L).t().contiguous()  # (P*L, B*T)
     # embedding_bag sums, for each grid point, the P table rows it names: a gather + sum over
     # pairs with no (grid x pairs x frames) intermediate.
