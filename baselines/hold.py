@@ -17,6 +17,8 @@ import doabench
 from doabench.errors import ConfigError
 
 _NEVER_VOICED = 1 << 62  # silent-run count before the first voice-active frame
+#: the values that switch an option off (``hold``, Cross3D's ``refine``)
+OFF_VALUES = ("off", "none", "false", "0", "no")
 
 
 def parse_hold(value: str | int) -> int | None:
@@ -24,7 +26,7 @@ def parse_hold(value: str | int) -> int | None:
     text = str(value).strip().lower()
     if text == "auto":
         return None
-    if text in ("off", "none", "false", "0", "no"):
+    if text in OFF_VALUES:
         return 0
     try:
         frames = int(text)

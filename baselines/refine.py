@@ -11,7 +11,8 @@ holds a refined direction. It adds no lag: the map is that of the same frame.
 
 The fine map is computed from the frame's audio (the ``audio`` observation) with
 :class:`doabench.SRPPHAT` on the nearest-sample delays (the maps' argmax is all that is used, so
-their normalisation does not matter). What it gave is in docs/performance.md ("Tried").
+their normalisation does not matter). What it gave is in docs/results.md ("Refined on the paper's
+finest maps").
 """
 from __future__ import annotations
 
@@ -25,12 +26,12 @@ from doabench.errors import ConfigError
 
 from doabench.trackers import parse_resolution, resolution_text
 
-_OFF = ("off", "none", "false", "no", "0", "")
+from .hold import OFF_VALUES
 
 
 def parse_refine(value: str | None) -> tuple[int, int] | None:
     """The ``refine`` option: None for ``off``, else the fine map's ``(n_theta, n_phi)``."""
-    if value is None or str(value).strip().lower() in _OFF:
+    if value is None or str(value).strip().lower() in (*OFF_VALUES, ""):
         return None
     try:
         return parse_resolution(str(value).strip())

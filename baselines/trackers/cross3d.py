@@ -47,8 +47,12 @@ class Cross3DTracker(NeuralTracker):
         if self._refine_grid is not None:
             self._refiner = MapRefiner(array, self._refine_grid, self.frame_spec, self._refine_radius)
 
+    @property
+    def refines(self) -> bool:
+        return self._refine_grid is not None
+
     def refine(self, directions: np.ndarray, observations: Mapping[str, np.ndarray]) -> np.ndarray:
-        if self._refine_grid is None:
+        if not self.refines:
             return directions
         if self._refiner is None:
             raise ConfigError(f"tracker {self.name!r}: reset(array) before running it (refine needs the array)")

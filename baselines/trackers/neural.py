@@ -294,9 +294,15 @@ class NeuralTracker(doabench.Tracker):
         """A whole episode ``{kind: (frames, ...)}`` -> the network's input with batch 1."""
         return self.network_input({k: self._tensor(episode[k])[None] for k in self.network_features})
 
+    @property
+    def refines(self) -> bool:
+        """Whether :meth:`refine` changes the network's directions (False here: it does not)."""
+        return False
+
     def refine(self, directions: np.ndarray, observations: Mapping[str, np.ndarray]) -> np.ndarray:
         """The network's directions ``(frames, 3)`` after any post-processing of the model's own, before
-        the hold rule; ``observations``: ``{kind: (frames, ...)}`` of the same frames. None here."""
+        the hold rule; ``observations``: ``{kind: (frames, ...)}`` of the same frames. Called only
+        where :attr:`refines`; none here."""
         return directions
 
     def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -304,7 +310,8 @@ class NeuralTracker(doabench.Tracker):
             return super().step(observation)  # offline model: the base class says to use track()
         y = self._runner.step(self.frame_input(observation))[0]
         direction = self.direction_from_output(y.detach().double().cpu().numpy())
-        direction = self.refine(direction[None], {k: np.asarray(v)[None] for k, v in observation.items()})[0]
+        if self.refines:  # one frame as a batch of one
+            direction = self.refine(direction[None], {k: np.asarray(v)[None] for k, v in observation.items()})[0]
         if self._hold is None:
             return direction
         return self._hold.step(direction, bool(np.asarray(observation.get("vad", True))))
@@ -325,7 +332,8 @@ class NeuralTracker(doabench.Tracker):
                 y = self.model(x)
         self._last = _INITIAL_DIRECTION.copy()
         directions = np.stack([self.direction_from_output(v) for v in y[0].to("cpu", torch.float64).numpy()])
-        directions = self.refine(directions, episode)
+        if self.refines:
+            directions = self.refine(directions, episode)
         return directions if self._hold is None else self._hold.episode(directions, episode["vad"])
 
     def direction_from_output(self, y: np.ndarray) -> np.ndarray:
