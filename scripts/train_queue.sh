@@ -65,6 +65,8 @@ fi
 # cross3d-16x32-moving-long: the 16x32 moving model trained on: the paper's schedule (80 epochs, its
 # learning rates) restarted from its weights (an entry whose options name the weights starts from them;
 # a paper entry otherwise starts from random weights), since the 32x64 maps did not lead on 18 epochs.
+# It was stopped after epoch 65 of 80 and exported (training-runs/cross3d-16x32-moving-long/card.md:
+# its best epoch by the held RMSAE, 24, was not beaten after it).
 # cross3d-32x64-moving: the same on the paper's finer 32x64 maps. Its step is step-bound (1.29 CPU-s
 # per trajectory compiled in bf16 against a 0.34 s item, benchmarks/bench_training.py), so the
 # training process takes both cores (2 threads) and the data worker fills the gaps. Its schedule is
