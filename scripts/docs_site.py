@@ -452,7 +452,9 @@ def _progress_table(folder: Path, every: int) -> list[str]:
 
 
 def _benchmarks(sha: str, root: Path) -> list[list[str]]:
-    """The leaderboard rows run with these weights: task, rank, RMSAE all and voice-active, mark."""
+    """The leaderboard rows run with these weights: task, run (the tracker with its options: one set of
+    weights may be on a board more than once, e.g. with and without ``refine``), rank, RMSAE all and
+    voice-active, mark."""
     out = []
     for path in sorted((root / "leaderboards").glob("*.csv")):
         if path.name.endswith("-cells.csv") or path.name.startswith("locata-paper"):
@@ -461,7 +463,7 @@ def _benchmarks(sha: str, root: Path) -> list[list[str]]:
         for r in rows:
             if r.get("weights_hash") == sha:
                 status = (r.get("training_distribution") or "").split(" ")[0]
-                out.append([f"[`{r['task']}`](leaderboards/{r['task']}.md) v{r['task_version']}",
+                out.append([f"[`{r['task']}`](leaderboards/{r['task']}.md) v{r['task_version']}", f"`{r['tracker']}`",
                             f"{r['rank']} of {len(rows)}", _with_ci(r, "rmsae_all", root), _with_ci(r, "rmsae_nonsilent", root),
                             {"in": "in-distribution", "out": "zero-shot"}.get(status, "—")])
     return out
@@ -528,7 +530,7 @@ def model_card(name: str, sha: str, run: dict[str, Any] | None, root: Path = ROO
     bench = _benchmarks(sha, root)
     lines += ["", "**Benchmark scores** (RMSAE in degrees, 95 % bootstrap intervals; the rows of the leaderboards "
                   "run with these weights):", ""]
-    lines += _table(["task", "rank", "RMSAE all frames", "RMSAE voice-active", "training distribution"], bench) \
+    lines += _table(["task", "run", "rank", "RMSAE all frames", "RMSAE voice-active", "training distribution"], bench) \
         if bench else ["No leaderboard row uses these weights yet."]
     if run:
         notes = run["folder"] / "card.md"

@@ -136,8 +136,8 @@ def test_aliases_resolve_to_one_canonical_id_and_options(tmp_path, monkeypatch):
     assert canonical_tracker("srp-max") == ("srp-max:16x32", {})
     assert canonical_tracker("srp-max", {"resolution": "8x16"}) == ("srp-max:8x16", {})
     assert canonical_tracker("srp-kalman:32x64", {"q": 0.01, "r": 0.2}) == ("srp-kalman:32x64", {"r": 0.2})
-    # the default weights are named (weights=moving); the plain paper-recipe file leaves no option
-    assert canonical_tracker("cross3d") == ("cross3d:16x32", {"weights": "moving"})
+    # the default weights are named (weights=moving-long); the plain paper-recipe file leaves no option
+    assert canonical_tracker("cross3d") == ("cross3d:16x32", {"weights": "moving-long"})
     shipped = str(ROOT / "baselines" / "weights" / "cross3d-16x32.safetensors")
     assert canonical_tracker("cross3d", {"weights": shipped, "hold": "auto"}) == ("cross3d:16x32", {})
     v3 = str(ROOT / "baselines" / "weights" / "cross3d-16x32-v3.safetensors")
