@@ -10,7 +10,7 @@ import pytest
 import doabench
 from doabench.errors import ConfigError
 from doabench.trackers.registry import canonical_tracker
-from doabench_baselines.refine import MapRefiner, parse_radius, parse_refine
+from doabench_baselines.refine import SPEED_FRAMES, MapRefiner, parse_radius, parse_refine, parse_speed
 from fixtures.signals import plane_wave
 
 NAO = doabench.get_array("nao")
@@ -80,7 +80,8 @@ def _tracker(**options):
 def test_the_tracker_refines_in_step_and_track_alike_and_reads_audio_only_then():
     plain, refining = _tracker(), _tracker(refine="32x64")
     assert "audio" not in plain.observation_spec.kinds and "audio" in refining.observation_spec.kinds
-    assert refining.describe()["refine"] == {"resolution": "32x64", "radius_deg": 180 / 3}  # 4x8: one elevation step
+    assert refining.describe()["refine"] == {"resolution": "32x64", "radius_deg": 180 / 3,  # 4x8: one elevation step
+                                             "min_speed_deg_s": 0.0}
     rng = np.random.default_rng(6)
     n = 12
     truth = _sources(n, rng)
@@ -104,12 +105,19 @@ def test_refine_is_part_of_the_run_identity_and_off_is_the_default():
     assert canonical_tracker("cross3d:4x8", {"weights": "random", "refine": "off"})[1] == {"weights": "random"}
     assert canonical_tracker("cross3d:4x8", {"weights": "random", "refine": "64x128"})[1] == {
         "weights": "random", "refine": "64x128"}
+    assert canonical_tracker("cross3d:4x8", {"weights": "random", "refine": "64x128", "refine_speed": 0})[1] == {
+        "weights": "random", "refine": "64x128"}
+    assert canonical_tracker("cross3d:4x8", {"weights": "random", "refine": "64x128", "refine_speed": 30})[1] == {
+        "weights": "random", "refine": "64x128", "refine_speed": 30}
 
 
 @pytest.mark.parametrize("options,message", [
     ({"refine": "fine"}, "refine must be off or a map resolution such as 64x128"),
     ({"refine": "64x128", "refine_radius": "0"}, "refine_radius must be auto or degrees in (0, 90]"),
     ({"refine": "64x128", "refine_radius": "wide"}, "refine_radius must be auto or degrees in (0, 90]"),
+    ({"refine": "64x128", "refine_speed": "-1"}, "refine_speed must be degrees per second >= 0"),
+    ({"refine": "64x128", "refine_speed": "fast"}, "refine_speed must be degrees per second >= 0"),
+    ({"refine": "64x128", "refine_speed": "inf"}, "refine_speed must be degrees per second >= 0"),
 ])
 def test_bad_refine_options_are_refused_in_one_line(options, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("]", r"\]")):
@@ -119,3 +127,51 @@ def test_bad_refine_options_are_refused_in_one_line(options, message):
 def test_option_parsing():
     assert parse_refine("off") is None and parse_refine(None) is None and parse_refine("64X128") == (64, 128)
     assert parse_radius("auto", (16, 32)) == 12.0 and parse_radius("7.5", (16, 32)) == 7.5
+    assert parse_speed(0) == 0.0 and parse_speed("30") == 30.0
+
+
+def _still_then_turning(still: int = 4, turning: int = 6, step_deg: float = 30.0):
+    """Source directions ``(still + turning, 3)``: ``still`` frames at one direction, then turning
+    ``step_deg`` a frame about the vertical axis (elevation 70 deg); and the network's directions:
+    the sources 8 deg lower (a still source gives a still network direction)."""
+    az = np.radians(np.concatenate([np.zeros(still), step_deg * np.arange(1, turning + 1)]))
+
+    def at(elevation_deg: float) -> np.ndarray:
+        el = np.radians(elevation_deg)
+        return np.stack([np.sin(el) * np.cos(az), np.sin(el) * np.sin(az), np.full_like(az, np.cos(el))], axis=1)
+
+    return at(70.0), at(78.0)
+
+
+def test_refine_speed_refines_only_where_the_network_turns_fast():
+    rng = np.random.default_rng(7)
+    truth, network = _still_then_turning()
+    audio = plane_wave(truth, FRAMES.window, NAO.positions, rng)
+    active = np.ones(len(truth), bool)
+    hop_s = FRAMES.hop / FRAMES.fs
+    # the network's first turning frame is 29 deg (30 deg of azimuth at elevation 78) from the still
+    # one two frames before: 76 deg/s over SPEED_FRAMES = 2 frames of 0.192 s; a still network turns 0 deg/s
+    assert SPEED_FRAMES == 2 and 29.0 / (SPEED_FRAMES * hop_s) > 50.0
+    gated = MapRefiner(NAO, (64, 128), FRAMES, radius_deg=12.0, min_speed_deg_s=50.0)(network, audio, active)
+    np.testing.assert_array_equal(gated[:4], network[:4])
+    assert np.all(_angle_deg(network[4:], truth[4:]) > 7.9) and _angle_deg(gated[4:], truth[4:]).max() < 4.0
+    always = MapRefiner(NAO, (64, 128), FRAMES, radius_deg=12.0)(network, audio, active)
+    assert _angle_deg(always, truth).max() < 4.0  # without the gate every frame moves onto the source
+    never = MapRefiner(NAO, (64, 128), FRAMES, radius_deg=12.0, min_speed_deg_s=1000.0)(network, audio, active)
+    np.testing.assert_array_equal(never, network)
+
+
+def test_the_speed_gate_gives_the_same_frames_one_call_each_as_a_whole_episode():
+    rng = np.random.default_rng(8)
+    truth, network = _still_then_turning(still=3, turning=5, step_deg=12.0)
+    audio = plane_wave(truth, FRAMES.window, NAO.positions, rng)
+    active = np.ones(len(truth), bool)
+    active[4] = False
+    whole = MapRefiner(NAO, (64, 128), FRAMES, radius_deg=12.0, min_speed_deg_s=40.0)(network, audio, active)
+    one = MapRefiner(NAO, (64, 128), FRAMES, radius_deg=12.0, min_speed_deg_s=40.0)
+    stepped = np.concatenate([one(network[i:i + 1], audio[i:i + 1], active[i:i + 1]) for i in range(len(truth))])
+    np.testing.assert_array_equal(stepped, whole)
+    # 12 deg of azimuth a frame (12 deg of arc at elevation 78): the first turning frame turned 31
+    # deg/s over two frames, below the gate; from the second on 61 deg/s, refined but where silent (4)
+    refined = np.any(whole != network, axis=1)
+    np.testing.assert_array_equal(refined, np.arange(len(truth)) >= 5)

@@ -9,7 +9,7 @@ import doabench
 from doabench.errors import ConfigError
 
 from .. import catalog
-from ..refine import MapRefiner, parse_radius, parse_refine
+from ..refine import MapRefiner, parse_radius, parse_refine, parse_speed
 from ..weights import resolution_text
 from .neural import NeuralTracker
 
@@ -28,16 +28,20 @@ class Cross3DTracker(NeuralTracker):
 
     def __init__(self, spec: str | None = None, weights: str | None = None, device: str = "cpu",
                  seed: int = 0, resolution: str | None = None, array: str | None = None,
-                 hold: str | int = "auto", refine: str = "off", refine_radius: str | float = "auto") -> None:
+                 hold: str | int = "auto", refine: str = "off", refine_radius: str | float = "auto",
+                 refine_speed: str | float = 0) -> None:
         """The :class:`NeuralTracker` options, and ``refine``: ``off`` (the paper's output) or a finer
         map resolution (``64x128``) whose maximum within ``refine_radius`` degrees (``auto``: one
-        cell of the network's map) replaces the direction on voice-active frames
+        cell of the network's map) replaces the direction on voice-active frames, only where the
+        network's direction turns faster than ``refine_speed`` degrees per second (0: on every one)
         (:mod:`doabench_baselines.refine`)."""
         fine = parse_refine(refine)
+        speed = parse_speed(refine_speed)
         super().__init__(spec, weights=weights, device=device, seed=seed, resolution=resolution, array=array, hold=hold)
-        self.options.update(refine=refine, refine_radius=refine_radius)
+        self.options.update(refine=refine, refine_radius=refine_radius, refine_speed=refine_speed)
         self._refine_grid = fine
         self._refine_radius = parse_radius(refine_radius, self._resolution, self._array.planar) if fine else None
+        self._refine_speed = speed
         self._refiner: MapRefiner | None = None
         if fine is not None:
             self.features = (*type(self).features, "audio")  # the fine map is computed from the frame's audio
@@ -45,7 +49,8 @@ class Cross3DTracker(NeuralTracker):
     def reset(self, array: doabench.MicArray, **context: Any) -> None:
         super().reset(array, **context)
         if self._refine_grid is not None:
-            self._refiner = MapRefiner(array, self._refine_grid, self.frame_spec, self._refine_radius)
+            self._refiner = MapRefiner(array, self._refine_grid, self.frame_spec, self._refine_radius,
+                                       self._refine_speed)
 
     @property
     def refines(self) -> bool:
@@ -61,7 +66,8 @@ class Cross3DTracker(NeuralTracker):
     def describe(self) -> dict[str, Any]:
         d = super().describe()
         d["refine"] = None if self._refine_grid is None else {
-            "resolution": resolution_text(self._refine_grid), "radius_deg": self._refine_radius}
+            "resolution": resolution_text(self._refine_grid), "radius_deg": self._refine_radius,
+            "min_speed_deg_s": self._refine_speed}
         return d
 
     def _default_resolution(self) -> tuple[int, int]:
