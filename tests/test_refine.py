@@ -118,6 +118,7 @@ def test_refine_is_part_of_the_run_identity_and_off_is_the_default():
     ({"refine": "64x128", "refine_speed": "-1"}, "refine_speed must be degrees per second >= 0"),
     ({"refine": "64x128", "refine_speed": "fast"}, "refine_speed must be degrees per second >= 0"),
     ({"refine": "64x128", "refine_speed": "inf"}, "refine_speed must be degrees per second >= 0"),
+    ({"refine_speed": 30}, "refine_speed=30 gates refine, which is off"),
 ])
 def test_bad_refine_options_are_refused_in_one_line(options, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("]", r"\]")):

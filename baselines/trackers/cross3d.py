@@ -37,6 +37,8 @@ class Cross3DTracker(NeuralTracker):
         (:mod:`doabench_baselines.refine`)."""
         fine = parse_refine(refine)
         speed = parse_speed(refine_speed)
+        if speed > 0 and fine is None:  # it would name a run apart from the plain one it equals
+            raise ConfigError(f"refine_speed={refine_speed} gates refine, which is off: add refine=64x128 (or leave it out)")
         super().__init__(spec, weights=weights, device=device, seed=seed, resolution=resolution, array=array, hold=hold)
         self.options.update(refine=refine, refine_radius=refine_radius, refine_speed=refine_speed)
         self._refine_grid = fine
