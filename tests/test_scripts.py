@@ -63,3 +63,18 @@ def test_the_moving_talker_ship_check_fails_todays_default(tmp_path, capsys) -> 
     if (results / "sim-grid__cross3d_32x64__16c0f61f.json").is_file():
         module.main([str(results), "--stem", "cross3d_32x64"])
         assert "sim-grid: 13.79 against 10.71 deg" in capsys.readouterr().out
+
+
+def test_the_ship_check_says_when_its_interval_fails_a_level_candidate() -> None:
+    """A static check's interval wider than the allowed loss (+0.3 deg) fails even a candidate level
+    with the reference: the line says how much better one must be on those episodes."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("ship_check_moving", ROOT / "scripts" / "ship_check_moving.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    # sim-pauses' 20 episodes: -0.53 [-2.31, +1.36] needs a candidate 1.89 - 0.3 = 1.59 deg better
+    note = module.too_few_episodes(-0.53, 1.36, 20)
+    assert "with 20 episodes" in note and "about 1.59 deg better" in note
+    # sim-grid's 360 episodes with a level candidate, +0.03 [-0.04, +0.10]: nothing to add
+    assert module.too_few_episodes(0.03, 0.10, 360) == ""
