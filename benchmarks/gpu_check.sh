@@ -8,7 +8,9 @@
 #       with what the budget leaves;
 #   (b) `doabench train --device cuda --preset paper` for cross3d:16x32 on a fixed number of freshly
 #       simulated trajectories, data workers on all cores but one, with nvidia-smi sampled, and the
-#       two rates that bound it (workers / item CPU s, 1 / GPU step s: benchmarks/bench_training.py);
+#       two rates that bound it (workers / item CPU s, 1 / GPU step s: benchmarks/bench_training.py),
+#       for cross3d:32x64 too, with the hours the paper's schedule (80 x 585 trajectories) would take
+#       at the lower of its two rates;
 #   (c) benchmarks/bench_simulation.py and benchmarks/bench_cross3d_latency.py on cuda (and the
 #       simulation on one CPU thread, for the ratio; and torchrir against builtin on cuda where
 #       torchrir is installed);
@@ -112,6 +114,10 @@ stage bench-latency-cuda 60 "$PY" benchmarks/bench_cross3d_latency.py --device c
 stage run-cuda 90 "$PY" -m doabench run --tracker cross3d:16x32 --task sim-demo --device cuda --out "$WORK/run-cuda" --quiet
 stage run-cpu 90 "$PY" -m doabench run --tracker cross3d:16x32 --task sim-demo --device cpu --out "$WORK/run-cpu" --quiet
 
+# (b, the rest) the paper's finer maps: what a cross3d:32x64 run would cost here
+stage train-costs-32x64 90 "$PY" benchmarks/bench_training.py --librispeech "$FIXTURE" --items 10 \
+    --trackers cross3d:32x64 --device cuda --no-compile --json "$WORK/train_costs_32x64.json"
+
 # (a, the rest) the suite without the slow tests, with what the budget leaves
 workers=$(( $(nproc) > 2 ? $(nproc) - 2 : 1 ))
 stage pytest-not-slow 240 "$PY" -m pytest -p no:cacheprovider -m "not slow and not cuda" -rfE -n "$workers" -v \
@@ -172,6 +178,20 @@ if log.is_file():
                  "item_cpu_s": c["item"], "gpu_step_s_per_trajectory": c["step"], "workers": workers}
         bound["bound_by"] = "data workers (simulation + features)" if bound["workers_rate"] < bound["gpu_rate"] else "GPU step"
         figures["train"]["bound"] = bound
+finer = load("train_costs_32x64.json")
+if costs or finer:  # per tracker: what would bound a run on this machine, and the paper's schedule at that rate
+    import os
+
+    from doabench.training.recipes import paper_recipe
+
+    paper = paper_recipe()
+    workers = (os.cpu_count() or 2) - 1
+    figures["train_bounds"] = {}
+    for tracker, c in {**(costs or {}).get("costs", {}), **(finer or {}).get("costs", {})}.items():
+        rate = min(workers / c["item"], 1.0 / c["step"])
+        figures["train_bounds"][tracker] = {
+            "workers_rate": workers / c["item"], "gpu_rate": 1.0 / c["step"], "bound_rate": rate,
+            "paper_schedule_h": paper.epochs * paper.trajectories_per_epoch / rate / 3600}
 sims = {k: load(f"sim_{k}.json") for k in ("cuda", "cuda_turn", "cpu")}
 figures["simulation"] = {k: v["summary"]["builtin"] for k, v in sims.items() if v}
 torchrir_sim = load("sim_torchrir_cuda.json")
