@@ -44,6 +44,14 @@ def parse_refine(value: str | None) -> tuple[int, int] | None:
         raise ConfigError(f"refine must be off or a map resolution such as 64x128: {exc}") from None
 
 
+def _number(value: str | float) -> float:
+    """``value`` as a float, NaN where it is none (so that one range check refuses both)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 #: frames over which the network's speed is measured for ``refine_speed`` (causal: this frame's
 #: direction against the one this many frames before; an episode's first frames against its first)
 SPEED_FRAMES = 2
@@ -51,10 +59,7 @@ SPEED_FRAMES = 2
 
 def parse_speed(value: str | float) -> float:
     """The ``refine_speed`` option: degrees per second, at least 0 (0: refine every voice-active frame)."""
-    try:
-        speed = float(value)
-    except (TypeError, ValueError):
-        speed = math.nan
+    speed = _number(value)
     if not speed >= 0 or math.isinf(speed):
         raise ConfigError(f"refine_speed must be degrees per second >= 0 (0: every voice-active frame), got {value!r}")
     return speed
@@ -66,10 +71,7 @@ def parse_radius(value: str | float, network_resolution: tuple[int, int], planar
     if str(value).strip().lower() == "auto":
         n_theta, n_phi = network_resolution
         return max((90.0 if planar else 180.0) / (n_theta - 1), 360.0 / n_phi)
-    try:
-        radius = float(value)
-    except (TypeError, ValueError):
-        radius = math.nan
+    radius = _number(value)
     if not 0 < radius <= 90:
         raise ConfigError(f"refine_radius must be auto or degrees in (0, 90], got {value!r}")
     return radius

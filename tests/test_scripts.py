@@ -36,10 +36,19 @@ def test_user_analysis_lives_in_commands_not_scripts() -> None:
     assert "--silence" in help_text and "--hold" in help_text and "--plot" in help_text
 
 
+def _ship_check():
+    """scripts/ship_check_moving.py, loaded as a module."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("ship_check_moving", ROOT / "scripts" / "ship_check_moving.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def test_the_moving_talker_ship_check_fails_todays_default(tmp_path, capsys) -> None:
     """scripts/ship_check_moving.py on today's default (the committed results) as the candidate: it
     trails walking talkers by 0.8 s, so the lag checks fail; against itself the static tasks pass."""
-    import importlib.util
     import shutil
 
     results = ROOT / "results"
@@ -50,9 +59,7 @@ def test_the_moving_talker_ship_check_fails_todays_default(tmp_path, capsys) -> 
         pytest.skip("the committed results are not present")
     for t in tasks:
         shutil.copy(results / f"{t}__cross3d_16x32.json", tmp_path)
-    spec = importlib.util.spec_from_file_location("ship_check_moving", ROOT / "scripts" / "ship_check_moving.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _ship_check()
     assert module.main([str(tmp_path)]) == 1
     out = capsys.readouterr().out
     assert "FAIL  sim-walk: pooled lag 0.8 s" in out and "pass  sim-grid: 10.71 against 10.71 deg" in out
@@ -68,11 +75,7 @@ def test_the_moving_talker_ship_check_fails_todays_default(tmp_path, capsys) -> 
 def test_the_ship_check_says_when_its_interval_fails_a_level_candidate() -> None:
     """A static check's interval wider than the allowed loss (+0.3 deg) fails even a candidate level
     with the reference: the line says how much better one must be on those episodes."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("ship_check_moving", ROOT / "scripts" / "ship_check_moving.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _ship_check()
     # sim-pauses' 20 episodes: -0.53 [-2.31, +1.36] needs a candidate 1.89 - 0.3 = 1.59 deg better
     note = module.too_few_episodes(-0.53, 1.36, 20)
     assert "with 20 episodes" in note and "about 1.59 deg better" in note
