@@ -113,3 +113,35 @@ def cross3d_input(srp: torch.Tensor, srp_max: torch.Tensor) -> torch.Tensor:
     el = srp_max[..., 0, None, None].expand(shape)
     az = srp_max[..., 1, None, None].expand(shape)
     return torch.stack([srp, el.to(srp.dtype), az.to(srp.dtype)], dim=-3)
+
+
+def widen_state(state: dict[str, torch.Tensor], source: tuple[int, int], target: tuple[int, int]) -> dict[str, torch.Tensor]:
+    """Weights of Cross3D on ``source`` maps -> a starting point for Cross3D on finer ``target`` maps.
+
+    Every 3D convolution has the same shape at every resolution and is copied. The 1D layer's input
+    grows with the pooled grid: its weights ``(128, C_source, 5)`` are split into the two branches'
+    ``(channel, elevation, azimuth)`` cells, each cell's weights repeated over the ``f_theta x f_phi``
+    finer cells that cover the same directions and divided by ``f_theta f_phi``, so that a map whose
+    finer cells repeat the coarse ones gives the source's 1D input exactly. Needs both resolutions
+    to have the same number of branch blocks and ``target`` to be a whole multiple of ``source``.
+    Returns ``(128, C_target, 5)`` for ``hidden.conv.weight`` and the other tensors unchanged.
+    """
+    (st, sp), (tt, tp) = source, target
+    layers = branch_layers(st, sp)
+    if branch_layers(tt, tp) != layers or tt % st or tp % sp:
+        raise ConfigError(f"Cross3D {tt}x{tp} cannot start from {st}x{sp} weights: the finer map must be a whole "
+                          f"multiple of the coarser one with as many pooling blocks ({layers})")
+    ft, fp = tt // st, tp // sp
+    key = next(k for k in state if k.startswith("hidden.") and k.endswith("weight"))
+    w = state[key]  # (128, C_source, 5)
+    phi_cells = st * (sp >> layers)  # the "phi" branch: (channel, n_theta, n_phi / 2^L)
+    out, _, k = w.shape
+    a = w[:, :CHANNELS * phi_cells].reshape(out, CHANNELS, st, sp >> layers, k)
+    e = w[:, CHANNELS * phi_cells:].reshape(out, CHANNELS, st >> layers, sp, k)
+
+    def spread(x: torch.Tensor) -> torch.Tensor:
+        return x.repeat_interleave(ft, dim=2).repeat_interleave(fp, dim=3).reshape(out, -1, k)
+
+    widened = dict(state)
+    widened[key] = torch.cat([spread(a), spread(e)], dim=1) / (ft * fp)
+    return widened

@@ -314,21 +314,22 @@ def test_cpu_preset_without_a_cache_leaves_no_run_folder(tmp_path, capsys):
     assert not out.exists()
 
 
-def test_compact_checkpoint_halves_moments_and_resumes(tmp_path):
-    """A compact run state (for committing): Adam moments and best weights in bfloat16, latest
-    weights exact; the optimiser loads it and keeps training."""
+def test_compact_checkpoint_stores_moments_in_eight_bits_and_resumes(tmp_path):
+    """A compact run state (for committing): latest weights exact, Adam moments in 8 bits a value on a
+    per-block log scale (within 7 % of each value), best weights as an 8-bit difference from the
+    latest; the optimiser loads it and keeps training."""
     import random
 
     from doabench.training import checkpoint as ckpt
 
     torch.manual_seed(0)
-    net = torch.nn.Linear(64, 64)
+    net = torch.nn.Linear(256, 64)
     opt = torch.optim.Adam(net.parameters(), 1e-3)
     for _ in range(3):
         opt.zero_grad()
-        net(torch.randn(8, 64)).square().mean().backward()
+        net(torch.randn(8, 256)).square().mean().backward()
         opt.step()
-    best = {k: v + 1 for k, v in net.state_dict().items()}
+    best = {k: v + 0.01 * torch.randn_like(v) for k, v in net.state_dict().items()}
     state = {"epoch": 3, "model": net.state_dict(), "best_model": best, "best_epoch": 2, "optimizer": opt.state_dict(),
              "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
              "recipe": {}, "tracker": "t", "task": "sim-train", "history": [], "best": 1.0, "compute_s": 1.0,
@@ -336,29 +337,32 @@ def test_compact_checkpoint_halves_moments_and_resumes(tmp_path):
     path = tmp_path / ckpt.LATEST
     ckpt.save_checkpoint(path, state)
     before, after = ckpt.compact_checkpoint(path)
-    assert after < 0.8 * before
+    assert after < 0.5 * before  # 7 of 16 bytes a parameter, and the per-block scales
     loaded = ckpt.load_checkpoint(path)
-    assert loaded["compact"] is True and loaded["epoch"] == 3
+    assert loaded["compact"] == "log8" and loaded["epoch"] == 3
     assert all(torch.equal(loaded["model"][k], v) for k, v in net.state_dict().items())  # exact
-    moments = [v for p in loaded["optimizer"]["state"].values() for k, v in p.items() if k != "step"]
-    assert moments and all(v.dtype == torch.bfloat16 for v in moments)
-    assert all(v.dtype == torch.bfloat16 for v in loaded["best_model"].values())
+    for index, per_param in opt.state_dict()["state"].items():
+        for key in ("exp_avg", "exp_avg_sq"):
+            exact, decoded = per_param[key], loaded["optimizer"]["state"][index][key]
+            assert decoded.shape == exact.shape and decoded.dtype == torch.float32
+            assert torch.equal(torch.sign(decoded), torch.sign(exact))
+            assert torch.all((decoded - exact).abs() <= 0.07 * exact.abs() + 1e-7 * exact.abs().max())
     for k, v in loaded["best_model"].items():
-        assert torch.allclose(v.float(), best[k], rtol=1e-2, atol=1e-3)
-    net2 = torch.nn.Linear(64, 64)
+        assert (v - best[k]).abs().max() <= (best[k] - net.state_dict()[k]).abs().max() / 254 + 1e-7
+    net2 = torch.nn.Linear(256, 64)
     net2.load_state_dict(loaded["model"])
     opt2 = torch.optim.Adam(net2.parameters(), 1e-3)
     opt2.load_state_dict(loaded["optimizer"])
     assert all(v.dtype == torch.float32 for p in opt2.state.values() for k, v in p.items() if k != "step")
     opt2.zero_grad()
-    net2(torch.randn(8, 64)).square().mean().backward()
+    net2(torch.randn(8, 256)).square().mean().backward()
     opt2.step()
     assert all(torch.isfinite(p).all() for p in net2.parameters())
 
 
 def test_resume_from_a_compact_state_continues_closely(tmp_path, caches):
-    """Committed (compact) run states resume: the next epoch runs from bf16-rounded moments and
-    ends close to the uninterrupted run."""
+    """Committed (compact) run states resume: the next epoch runs from the 8-bit moments and ends
+    close to the uninterrupted run."""
     from doabench.training import checkpoint as ckpt
 
     straight = make_trainer(tmp_path / "a", caches)

@@ -81,6 +81,14 @@ class Cross3DTracker(NeuralTracker):
 
         return Cross3D(*self._resolution)
 
+    def adapt_weights(self, state: dict[str, torch.Tensor], resolution: tuple[int, int] | None) -> dict[str, torch.Tensor]:
+        """Weights for coarser maps widened to this tracker's (:func:`doabench_baselines.cross3d.widen_state`)."""
+        from ..cross3d import widen_state
+
+        if resolution is None:
+            return super().adapt_weights(state, resolution)
+        return widen_state(state, resolution, self._resolution)
+
     def network_input(self, features: Mapping[str, torch.Tensor]) -> torch.Tensor:
         srp = features["srp"]  # (B, T, n_theta, n_phi)
         if tuple(srp.shape[2:]) != self._resolution:

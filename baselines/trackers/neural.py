@@ -259,6 +259,46 @@ class NeuralTracker(doabench.Tracker):
         """Batched features ``{kind: (batch, frames, ...)}`` -> the network's input tensor."""
         raise NotImplementedError
 
+    def warm_start_from(self, source: doabench.Tracker) -> None:
+        """Start this tracker's network from the trained weights of ``source`` (training protocol,
+        ``doabench train --warm-start``): the same model reading the same observations on the same
+        frames, at this resolution or, where the model can carry weights over (:meth:`adapt_weights`),
+        another. Anything else is refused in one line before training starts."""
+        name = f"--warm-start {source.name}"
+        if not isinstance(source, NeuralTracker) or source.model_name != self.model_name:
+            raise ConfigError(f"{name}: a warm start needs weights of {self.model_name!r}, not of another tracker")
+        if not source.trained:
+            raise ConfigError(f"{name}: the tracker has no trained weights to start from (weights=random)")
+        mine, theirs = self.observation_spec, source.observation_spec
+        if (mine.kinds, mine.frame_spec, mine.spectrogram_frame_spec) != (
+                theirs.kinds, theirs.frame_spec, theirs.spectrogram_frame_spec) or theirs.delays != mine.delays:
+            raise ConfigError(f"{name}: its weights read other observations ({', '.join(theirs.kinds)} on "
+                              f"{theirs.frame_spec.to_dict()}, {theirs.delays} delays) than {self.name} trains on "
+                              f"({', '.join(mine.kinds)} on {mine.frame_spec.to_dict()}, {mine.delays} delays)")
+        if source.trained_array.positions.shape != self.trained_array.positions.shape or not np.allclose(
+                source.trained_array.positions, self.trained_array.positions):
+            raise ConfigError(f"{name}: its weights were trained on the {source.trained_array.name} array, "
+                              f"this run trains on {self.trained_array.name}")
+        state = {k: v.detach().clone() for k, v in source.network.state_dict().items()}
+        if source.resolution != self.resolution:
+            state = self.adapt_weights(state, source.resolution)
+        self.load_network_state(state, name)
+
+    def adapt_weights(self, state: dict[str, torch.Tensor], resolution: tuple[int, int] | None) -> dict[str, torch.Tensor]:
+        """``state``, weights of this model for ``resolution`` maps, made to fit this tracker's maps
+        (a warm start); models that cannot do this refuse it."""
+        raise ConfigError(f"{self.model_name}: weights for {resolution_text(resolution) if resolution else 'no'} maps "
+                          f"cannot start a model for {resolution_text(self.resolution) if self.resolution else 'no'} maps")
+
+    def load_network_state(self, state: Mapping[str, torch.Tensor], where: str) -> None:
+        """Load ``state`` into the network; a tensor of another shape is one line naming it."""
+        own = self.network.state_dict()
+        wrong = [k for k in own if k not in state or tuple(state[k].shape) != tuple(own[k].shape)]
+        if wrong or set(state) - set(own):
+            raise ConfigError(f"{where}: its weights do not fit {self.name} "
+                              f"({wrong[0] if wrong else sorted(set(state) - set(own))[0]})")
+        self.network.load_state_dict(state)
+
     # -- running --------------------------------------------------------------------------------------
     def reset(self, array: doabench.MicArray, **context: Any) -> None:
         frame_spec = context.get("frame_spec")

@@ -48,6 +48,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="torch.compile the network (default: on for the presets that simulate on the fly, paper and finetune; about 1-2 minutes of "
                         "compilation per batch shape, then a faster step)")
     p.add_argument("--device", default="cpu", help="device the network trains on: cpu (default) or cuda")
+    p.add_argument("--warm-start", metavar="TRACKER",
+                   help="start a new run from this trained tracker's weights (same model and observations; "
+                        "Cross3D also from a coarser map, e.g. --tracker cross3d:32x64 --warm-start cross3d:16x32 "
+                        "--warm-start-opt weights=moving-long)")
+    p.add_argument("--warm-start-opt", action="append", default=[], metavar="KEY=VALUE",
+                   help="option of the --warm-start tracker (repeatable), e.g. weights=moving-long")
     p.add_argument("--out", required=True, help="run folder: checkpoints, log.csv, loss.png")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--librispeech", help="LibriSpeech root holding train-clean-100 (default: $DOABENCH_LIBRISPEECH)")
@@ -161,7 +167,8 @@ def main(args: argparse.Namespace) -> int:
                         max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
                         dataset=Path(args.dataset) if args.dataset else None, epochs=args.epochs,
                         recipe_options=given_recipe_options(args), precision=args.precision,
-                        workers=args.workers, device=args.device,
+                        workers=args.workers, device=args.device, warm_start=args.warm_start,
+                        warm_start_options=parse_options(args.warm_start_opt),
                         compile=recipe.data == "simulate" if args.compile is None else args.compile)
     if args.build_cache:
         from doabench.training.distributed import is_distributed_launch

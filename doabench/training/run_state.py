@@ -129,6 +129,35 @@ def initial_weights(saved: Mapping[str, Any] | None, tracker: Any, name: str,
             "sha256": described.get("weights_hash"), "training": described.get("training")}
 
 
+def warm_start(saved: Mapping[str, Any] | None, tracker: Any, source_id: str, source_options: Mapping[str, Any],
+               out: Path, log: Callable[[str], None]) -> dict[str, Any]:
+    """Start a new run's network from the trained tracker ``source_id`` (``--warm-start``) and return
+    the record of it; a resumed run keeps its own starting point, which must be that one. Refused
+    in one line before training: a tracker without the protocol's ``warm_start_from``, or weights
+    of another model, feature set, frame grid or array (the tracker's own checks)."""
+    from doabench.trackers.registry import make_tracker
+
+    source = make_tracker(source_id, **dict(source_options))
+    digest = source.weights_hash()
+    if saved is not None:
+        recorded = saved.get("initial_weights") or {}
+        if recorded.get("sha256") != digest:
+            raise ConfigError(f"{out} started from {recorded.get('weights') or 'random weights'}, not from the "
+                              f"weights of --warm-start {source_id}; resume it without --warm-start")
+        return dict(recorded)
+    if not callable(getattr(tracker, "warm_start_from", None)):
+        raise ConfigError(f"--warm-start: the trained tracker has no warm_start_from(source) to take weights "
+                          f"from {source_id}")
+    tracker.warm_start_from(source)
+    described = source.describe() if hasattr(source, "describe") else {}
+    weights = described.get("weights")
+    log(f"warm start: the network starts from {source_id}'s weights"
+        f"{'' if weights is None else ' (' + Path(weights).name + ')'}")
+    return {"weights": None if weights is None else Path(weights).name, "sha256": digest,
+            "training": described.get("training"), "warm_start": {"tracker": source_id,
+                                                                  "resolution": list(source.resolution or []) or None}}
+
+
 def best_by(saved: Mapping[str, Any] | None) -> str:
     """The validation score a run selects its best epoch by (see the module docstring)."""
     return BEST_BY if saved is None else str(saved.get("best_by") or LEGACY_BEST_BY)

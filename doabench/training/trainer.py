@@ -68,6 +68,10 @@ class TrainOptions:
     compile: bool = False          # torch.compile the network's training forward (channels-last 3D maps)
     workers: int | None = None     # DataLoader workers; None: the recipe's, capped at the free cores
     device: str = "cpu"            # where the network trains (cuda: also simulation when workers == 0)
+    # a new run's starting point: a trained tracker of the same model (another map resolution
+    # where the model carries its weights over), built with warm_start_options
+    warm_start: str | None = None
+    warm_start_options: dict[str, Any] = field(default_factory=dict)
 
 
 def _set_threads(threads: int | None, device: torch.device, workers: int) -> None:
@@ -119,7 +123,11 @@ class Trainer:
         if self.saved is not None:
             run_state.check_same_task(self.saved, self.spec, self.out)
         # What the run starts from: recorded in the checkpoint and in exported weights files.
-        self.initial_weights = run_state.initial_weights(self.saved, self.tracker, options.tracker, log)
+        if options.warm_start is not None:
+            self.initial_weights = run_state.warm_start(self.saved, self.tracker, options.warm_start,
+                                                        options.warm_start_options, self.out, log)
+        else:
+            self.initial_weights = run_state.initial_weights(self.saved, self.tracker, options.tracker, log)
         if recipe.t60 is None and "t60" in (defaults := training_defaults(self.tracker)):
             recipe = recipe.replace(t60=tuple(defaults["t60"]))
         self.recipe = recipe
