@@ -29,7 +29,10 @@ from doabench.errors import ConfigError, DoabenchError, NotFoundError, one_line
 
 T = TypeVar("T")
 
-__all__ = ["Registry", "UnknownNameError"]
+__all__ = ["OWN_PACKAGES", "Registry", "UnknownNameError"]
+
+#: The import packages of doabench's own distribution: their entry points are doabench's code.
+OWN_PACKAGES = ("doabench", "doabench_baselines")
 
 
 class UnknownNameError(NotFoundError, ConfigError):
@@ -130,6 +133,21 @@ class Registry(Generic[T]):
         if key not in self._entries:
             raise ConfigError(self._broken.get(key) or f"{self.what} plug-in {key!r} registered nothing")
         return key, self._entries[key]
+
+    def find_own(self, name: str) -> tuple[str, T] | None:
+        """:meth:`find` for a name read from a file someone else wrote (a results file's task kind):
+        what is registered already, or what doabench itself declares (an entry point into
+        :data:`OWN_PACKAGES`); None for anything else, whose entry point is not loaded. A name in a
+        file never chooses a plug-in to import."""
+        key = self.match(name)
+        if key is None:
+            return None
+        if key not in self._entries:
+            entry = self.declared().get(key)
+            if entry is None or entry.value.split(":", 1)[0].strip().split(".", 1)[0] not in OWN_PACKAGES:
+                return None
+            self._load(key)
+        return (key, self._entries[key]) if key in self._entries else None
 
     def get(self, name: str, context: str = "") -> T:
         """The object registered or declared as ``name``; an :class:`UnknownNameError` naming the

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import copy
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -285,3 +288,75 @@ def test_a_json_file_that_is_not_a_results_file_is_named_and_skipped(results_dir
     stray = [line for line in err.splitlines() if "stray.json" in line]
     assert len(stray) == 1 and "skipped" in stray[0] and reason in stray[0], err
     assert (out / "sim-grid.md").is_file()  # the other files are ranked as before
+
+
+#: a module that leaves a mark when it is imported
+MARKING_MODULE = "import pathlib\npathlib.Path(__file__).with_name('IMPORTED').write_text('module code ran')\n"
+
+
+def _naming_evilmod(folder: Path) -> dict:
+    """A results file whose tracker, given id, weights and task kind all name the module evilmod."""
+    results = _results("evilmod:Evil", 20.0)
+    results["tracker"].update(given_id="evilmod:Evil", weights_hash="ab" * 32, options={"weights": "evil.safetensors"})
+    results["task"]["kind"] = "evilmod"
+    return results
+
+
+def test_reading_results_files_imports_nothing_they_name(tmp_path: Path) -> None:
+    """Results files are data, often someone else's: one whose tracker id is ``evilmod:Evil``, read
+    where ``evilmod.py`` lies beside it and on the path, is text to ``leaderboard`` and ``compare``;
+    the module is never imported, and both commands still work."""
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    (folder / "evilmod.py").write_text(MARKING_MODULE)
+    (folder / "sim-grid__evilmod_Evil.json").write_text(json.dumps(_naming_evilmod(folder)))
+    (folder / "sim-grid__srp-max_8x16.json").write_text(json.dumps(_results("srp-max:8x16", 30.0)))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(folder), os.environ.get("PYTHONPATH")]))}
+    for args in (["leaderboard", "--results", ".", "--out", "boards"],
+                 ["compare", "sim-grid__evilmod_Evil.json", "sim-grid__srp-max_8x16.json", "--csv", "c.csv"]):
+        proc = subprocess.run([sys.executable, "-m", "doabench", *args], cwd=folder, env=env, capture_output=True,
+                              text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        assert not (folder / "IMPORTED").exists(), f"doabench {args[0]} imported evilmod"
+    assert "`evilmod:Evil (weights=evil.safetensors)`" in (folder / "boards" / "sim-grid.md").read_text()
+    assert "evilmod:Evil" in (folder / "c.csv").read_text()
+
+
+def test_a_name_in_a_results_file_loads_no_plug_in(tmp_path: Path, monkeypatch) -> None:
+    """Installed plug-ins are not loaded by a name read from a results file either: a tracker id, a
+    task kind and a task prefix declared by a package's entry points stay text to the views."""
+    from importlib import metadata
+
+    import doabench.plugins as plugins
+    from doabench.reporting import compare as cmp
+
+    (tmp_path / "evilmod.py").write_text(MARKING_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    declared = metadata.entry_points
+
+    def entry_points(**kw):
+        found = list(declared(**kw))
+        extra = {"doabench.trackers": "evil", "doabench.task_kinds": "evilkind", "doabench.task_prefixes": "evilfile"}
+        if kw.get("group") in extra:
+            found.append(metadata.EntryPoint(extra[kw["group"]], "evilmod:Evil", kw["group"]))
+        return found
+
+    monkeypatch.setattr(plugins.metadata, "entry_points", entry_points)
+    folder = tmp_path / "results"
+    folder.mkdir()
+    results = _naming_evilmod(folder)
+    results["tracker"].update(id="evil:16x32", name="evil")
+    results["task"]["kind"] = "evilkind"
+    assert "options" not in results["task"]  # as in an old file: its task options are read back through its kind
+    (folder / "sim-grid__evil.json").write_text(json.dumps(results))
+    other = _results("srp-max:8x16", 30.0)
+    (folder / "sim-grid__srp-max_8x16.json").write_text(json.dumps(other))
+    page = build_leaderboards(folder)["sim-grid.md"]
+    assert "`evil:16x32 (weights=evil.safetensors)`" in page and "--tracker evil:16x32" in page
+    prefixed = tmp_path / "prefixed"
+    prefixed.mkdir()
+    (prefixed / "r.json").write_text(json.dumps({**results, "task": {**results["task"], "id": "evilfile:x"}}))
+    assert "evilfile_x.md" in build_leaderboards(prefixed)
+    runs = [cmp.load_run(folder / "sim-grid__evil.json"), cmp.load_run(folder / "sim-grid__srp-max_8x16.json")]
+    assert "`evil:16x32 (weights=evil.safetensors)`" in cmp.markdown([cmp.compare(*runs)])
+    assert "evilmod" not in sys.modules and not (tmp_path / "IMPORTED").exists()

@@ -171,6 +171,20 @@ def test_views_print_the_name_of_committed_results_made_before_names_existed() -
     assert re.search(r"--tracker-opt weights=moving( |$)", reproduce_command(moving))
 
 
+def test_results_written_before_names_existed_are_named_by_the_catalog() -> None:
+    """Reading a results file builds no tracker: a file written before results recorded
+    ``tracker.weights_name`` is named from a table of the weights that shipped then, which is what
+    the catalog calls them."""
+    from doabench.results.identity import NAMES_BEFORE_RECORDING
+
+    catalog = {(e.tracker, e.sha256): e.name for e in C.all_named()}
+    assert NAMES_BEFORE_RECORDING and all(catalog.get(key) == name for key, name in NAMES_BEFORE_RECORDING.items())
+    for path in sorted((ROOT / "results").glob("*.json")):
+        tracker = json.loads(path.read_text()).get("tracker") or {}
+        if tracker.get("weights_hash") and "weights_name" not in tracker:
+            assert (tracker["id"], tracker["weights_hash"]) in NAMES_BEFORE_RECORDING, path.name
+
+
 def test_list_weights_shows_each_name_its_default_and_figures(capsys) -> None:
     assert main(["list", "weights"]) == 0
     text = capsys.readouterr().out

@@ -63,6 +63,13 @@ def task_kind(kind: str, task_id: str | None = None) -> Callable[..., EpisodeSou
     return TASK_KINDS.get(kind, context=f"task {task_id!r}: " if task_id is not None else "")
 
 
+def recorded_task_kind(kind: str) -> Callable[..., EpisodeSource] | None:
+    """The factory of a task kind named by a results file: one registered already or one of
+    doabench's own; None for any other (a name read from a file never loads a plug-in)."""
+    found = TASK_KINDS.find_own(str(kind))
+    return None if found is None else found[1]
+
+
 def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
     """The episode source of ``spec``: its kind's factory, given the options (not None) its kind takes."""
     factory = task_kind(spec.kind, spec.id)
@@ -98,11 +105,9 @@ def task_identity(spec: TaskSpec, options: Mapping[str, Any]) -> dict[str, Any]:
 def recorded_identity(spec: TaskSpec | None, kind: str, source: Mapping[str, Any]) -> dict[str, Any]:
     """:func:`task_identity` of a run recorded before results held it, from its ``task.source``
     (the kind's ``Options.from_source``); ``{}`` where the kind or its reading is not available
-    here (such a file is taken as a run of the task's defaults)."""
-    try:
-        declared = getattr(task_kind(kind), "Options", None)
-    except ConfigError:
-        return {}
+    here (such a file is taken as a run of the task's defaults). The kind is looked up by
+    :func:`recorded_task_kind`: reading a results file loads no plug-in."""
+    declared = getattr(recorded_task_kind(kind), "Options", None)
     from_source = getattr(declared, "from_source", None)
     if not callable(from_source):
         return {}

@@ -69,13 +69,10 @@ def scene_features(scene: Mapping[str, Any]) -> set[str]:
 
 
 def _spec(task_id: str):
-    from doabench.envs.registry import get_task_spec
-    from doabench.errors import DoabenchError
+    """The registered task ``task_id`` (None for another: a results file's ids resolve nothing)."""
+    from doabench.results.identity import recorded_task_spec
 
-    try:
-        return get_task_spec(task_id)
-    except DoabenchError:
-        return None
+    return recorded_task_spec(task_id)
 
 
 def _simulator(spec: Any, source: Mapping[str, Any] | None = None) -> str:

@@ -19,14 +19,13 @@ import math
 from pathlib import Path
 from typing import Any, Sequence
 
-from doabench.envs.sources import task_kind
-from doabench.errors import ConfigError
+from doabench.envs.sources import recorded_task_kind
 from doabench.reporting.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, coverage, display_path,
                                       load_references, load_runs, recording_mean)
 from doabench.files import file_stem
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
-from doabench.trackers.registry import available_trackers
+from doabench.trackers.registry import TRACKERS
 
 PUBLISHED = "published"
 REPRODUCED = "doabench run"
@@ -73,11 +72,9 @@ def safe_name(task_id: str) -> str:
 def kind_reproduce_flags(task: dict[str, Any]) -> list[str]:
     """The run-time flags of the task's kind that re-create a run (corpus roots as placeholders),
     as the kind's options declare them (``Options.reproduce_flags(task["source"])``); none for a
-    kind that declares none or is not installed here."""
-    try:
-        options = getattr(task_kind(str(task.get("kind"))), "Options", None)
-    except ConfigError:
-        return []
+    kind that declares none, or that is neither doabench's own nor registered already (a kind
+    named by a results file loads no plug-in: :func:`doabench.envs.sources.recorded_task_kind`)."""
+    options = getattr(recorded_task_kind(str(task.get("kind"))), "Options", None)
     flags = getattr(options, "reproduce_flags", None)
     return list(flags(task.get("source") or {})) if callable(flags) else []
 
@@ -114,10 +111,11 @@ def reproduce_command(results: dict[str, Any]) -> str:
 
 def typeable_id(results: dict[str, Any]) -> str:
     """The tracker id to type again: the canonical id where a tracker of that name is registered
-    here, else the text the run was started with (``given_id``: a plug-in's ``package.module:Class``)."""
+    here (declared or registered: nothing is loaded), else the text the run was started with
+    (``given_id``: a plug-in's ``package.module:Class``)."""
     canonical = canonical_id(results)
     given = (results.get("tracker") or {}).get("given_id")
-    if given and canonical.split(":", 1)[0] not in available_trackers():
+    if given and canonical.split(":", 1)[0] not in TRACKERS.names():
         return str(given)
     return canonical
 

@@ -165,13 +165,10 @@ def cells_of(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
     that cell, from its summary."""
     if results.get("cells"):
         return dict(results["cells"])
-    from doabench.envs.registry import get_task_spec
-    from doabench.errors import DoabenchError
+    from doabench.results.identity import recorded_task_spec
 
-    try:
-        cell = get_task_spec(results["task"]["id"]).params.get("cell")
-    except DoabenchError:
-        cell = None
+    spec = recorded_task_spec(str(results["task"]["id"]))  # a results file's id resolves nothing else
+    cell = spec.params.get("cell") if spec is not None else None
     if not cell or "t60" not in cell or "snr" not in cell:
         return {}
     s = results.get("summary") or {}

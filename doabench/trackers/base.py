@@ -146,8 +146,8 @@ class Tracker:
 
     @classmethod
     def named_weights(cls, spec: str | None) -> dict[str, str]:
-        """``{sha256: name}`` of the shipped weights of this tracker at ``spec`` (empty: none), so a
-        results file's weights hash reads back as a name."""
+        """``{sha256: name}`` of the shipped weights of this tracker at ``spec`` (empty: none). Results
+        files record the name a run had (``tracker.weights_name``); reading one never calls this."""
         return {}
 
     def parameter_count(self) -> int:

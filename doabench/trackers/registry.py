@@ -194,19 +194,6 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
     return canonical, options
 
 
-def weights_name(tracker_id: str, weights_hash: str | None) -> str | None:
-    """The short name of the shipped weights with this SHA-256 for the tracker ``tracker_id``
-    (canonical id), from its class's :meth:`Tracker.named_weights`; None when it is not one of them
-    or the tracker is not installed here."""
-    if not weights_hash:
-        return None
-    try:
-        cls, spec, _ = resolve_tracker(tracker_id)
-        return cls.named_weights(spec).get(weights_hash)
-    except DoabenchError:
-        return None
-
-
 def make_tracker(text: str, **options: Any) -> Tracker:
     """Instantiate a tracker from its ``--tracker`` text and options."""
     cls, spec, name = resolve_tracker(text)
