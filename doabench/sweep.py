@@ -101,7 +101,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
 
     A results file of another configuration in the way (another task version, other weights) is
     replaced only with ``overwrite``; without it that run fails at once, before any work."""
-    from doabench.envs.registry import get_task_spec
+    from doabench.envs.registry import get_task_spec, task_reference
     from doabench.ray_support import check_engine, require_ray
     from doabench.results.writer import check_overwrite
     from doabench.trackers.registry import make_tracker
@@ -111,7 +111,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
         require_ray()
     trackers, tasks = parse_list(trackers, "trackers"), parse_list(tasks, "tasks")
     options = dict(tracker_options or {})
-    task_ids = [get_task_spec(t).id for t in tasks]  # unknown ids: one line, before any work
+    task_ids = [task_reference(get_task_spec(t)) for t in tasks]  # unknown ids: one line, before any work
     # One model, one run: aliases (cross3d, cross3d:16x32) resolve to one canonical id and options
     # (RunSpec.build), each on the observations it was trained on unless --delays asks for others.
     specs: dict[tuple[str, str], RunSpec] = {}

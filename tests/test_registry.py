@@ -201,3 +201,26 @@ def test_a_misspelt_task_option_is_refused_with_the_nearest_name():
     quick = {"duration_s": 2.0, "n_points": 8}
     doabench.run(tracker="srp-max:4x8", task="sim-demo", episodes=1, progress=False, scene_overrides=quick,
                  locata_root=None, split=None)
+
+
+def test_older_task_versions_stay_runnable_and_an_unknown_version_names_those_that_exist(tmp_path):
+    """sim-pauses v3 (120 episodes) is the task; v2 (20 episodes) runs by its versioned id, the
+    Gymnasium way, and its results stay readable; a version that does not exist is one line."""
+    import gymnasium
+
+    from doabench.envs.registry import get_task_spec, task_reference, task_versions
+
+    latest, old = get_task_spec("sim-pauses"), get_task_spec("doabench/sim-pauses-v2")
+    assert (latest.version, latest.episodes) == (3, 120) and (old.version, old.episodes) == (2, 20)
+    assert get_task_spec("sim-pauses-v2") is old and sorted(task_versions("sim-fan")) == [1, 2]
+    assert task_reference(old) == "sim-pauses-v2" and task_reference(latest) == "sim-pauses"
+    assert gymnasium.spec("doabench/sim-pauses-v2").kwargs["task"] == "doabench/sim-pauses-v2"
+    with pytest.raises(doabench.NotFoundError, match=r"no version 7 \(registered: v2, v3"):
+        get_task_spec("doabench/sim-pauses-v7")
+    # a file on the task path cannot add a newer version of a built-in task
+    (tmp_path / "x.toml").write_text('id = "sim-demo"\nversion = 99\nkind = "simulated"\nepisodes = 1\n')
+    from doabench.envs.registry import register_task
+
+    with pytest.raises(ConfigError, match="defined|registered"):
+        register_task(tmp_path / "x.toml")
+    assert get_task_spec("sim-demo").version != 99

@@ -62,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
     if spec.trained_delays is not None:
         print(f"note: {spec.tracker} was trained on {spec.trained_delays} SRP delays; running with --delays "
               f"{spec.delays} as asked (the results record both)", file=sys.stderr)
-    task = get_task_spec(spec.task)
+    task = get_task_spec(spec.task_ref)
     if args.vad and "vad" not in kind_options(task_kind(task.kind, task.id)):
         raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.task!r} is {task.kind} (its VAD is the scene's)")
     out = Path(args.out)

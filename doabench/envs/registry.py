@@ -27,7 +27,10 @@ from doabench.plugins import Registry
 
 PREFIX_ENTRY_POINT_GROUP = "doabench.task_prefixes"
 
-_TASKS: dict[str, TaskSpec] = {}
+_TASKS: dict[str, TaskSpec] = {}  # task id -> its latest version
+#: every registered version of each task id (an older version stays runnable as
+#: ``doabench/<id>-v<N>``, or ``<id>-v<N>``, and results files of it stay readable)
+_VERSIONS: dict[str, dict[int, TaskSpec]] = {}
 _LOADED = False
 #: Dynamic task families by the prefix of their ids (``file`` resolves ``file:data.h5``, dataset replay),
 #: doabench's own declared in its pyproject.toml as a plug-in's (:mod:`doabench.plugins`).
@@ -82,13 +85,14 @@ def _load_file_at_startup(path: Path) -> None:
         _BROKEN.setdefault(path.stem, reason)
         return
     for spec in specs:
-        old = _TASKS.get(spec.id)
-        if old is not None and old.source_file != spec.source_file and old != spec:
-            reason = (f"task id {spec.id!r} is defined twice, by {old.source_file} and by {spec.source_file}; "
-                      "rename one")
+        old = _conflicting(spec)
+        if old is not None:
+            reason = (f"task id {spec.id!r} is defined twice, by {old.source_file} (v{old.version}) and by "
+                      f"{spec.source_file} (v{spec.version}); rename one (the versions of a task live in one folder)")
             _warn(f"{reason}; {spec.source_file} skipped")
             _BROKEN[spec.id] = reason
-            del _TASKS[spec.id]
+            _TASKS.pop(spec.id, None)
+            _VERSIONS.pop(spec.id, None)
             continue
         if spec.id in _BROKEN:
             continue
@@ -107,14 +111,64 @@ def register_task(spec: TaskSpec | dict[str, Any] | str | Path) -> list[TaskSpec
     else:
         specs = load_spec_file(spec)
     for s in specs:
-        old = _TASKS.get(s.id)
-        if old is not None and old.source_file != s.source_file and old != s:
-            raise ConfigError(f"task id {s.id!r} from {s.source_file} is already registered by {old.source_file}")
-        _TASKS[s.id] = s
+        old = _conflicting(s)
+        if old is not None:
+            raise ConfigError(f"task id {s.id!r} version {s.version} from {s.source_file} is already registered by "
+                              f"{old.source_file}")
+        versions = _VERSIONS.setdefault(s.id, {})
+        versions[s.version] = s
+        _TASKS[s.id] = versions[max(versions)]
         if s.gym_id not in gymnasium.registry:
-            gymnasium.register(id=s.gym_id, entry_point="doabench.envs.env:DoaEnv", kwargs={"task": s.id},
+            # the env is built from the gym id, so each registered version runs as itself
+            gymnasium.register(id=s.gym_id, entry_point="doabench.envs.env:DoaEnv", kwargs={"task": s.gym_id},
                                disable_env_checker=True)
     return specs
+
+
+def _conflicting(spec: TaskSpec) -> TaskSpec | None:
+    """A registered spec that ``spec`` may not stand beside: another definition of its version, or
+    a version of its id from another folder (every version of a task lives in one folder, so a file
+    on the task path cannot add a newer version of a built-in task and replace it)."""
+    versions = _VERSIONS.get(spec.id, {})
+    same = versions.get(spec.version)
+    if same is not None and same.source_file != spec.source_file and same != spec:
+        return same
+    folder = None if spec.source_file is None else Path(spec.source_file).parent
+    for other in versions.values():
+        if other.source_file is not None and folder is not None and Path(other.source_file).parent != folder:
+            return other
+    return None
+
+
+def task_versions(task_id: str) -> dict[int, TaskSpec]:
+    """Every registered version of ``task_id`` (``{version: spec}``, oldest first; empty when unknown)."""
+    _ensure_loaded()
+    return dict(sorted(_VERSIONS.get(task_id, {}).items()))
+
+
+def task_reference(spec: TaskSpec) -> str:
+    """The id that resolves to exactly ``spec``: its plain id when it is the latest registered
+    version, else ``<id>-v<version>``."""
+    latest = _TASKS.get(spec.id)
+    return spec.id if latest is None or latest.version == spec.version else f"{spec.id}-v{spec.version}"
+
+
+def _versioned(key: str) -> tuple[str, int] | None:
+    """``sim-pauses-v2`` -> ``("sim-pauses", 2)`` where ``sim-pauses`` is a registered task and the
+    text itself is not; else None."""
+    base, sep, number = key.rpartition("-v")
+    if not sep or not number.isdigit() or key in _TASKS or base not in _VERSIONS:
+        return None
+    return base, int(number)
+
+
+def _version_of(task_id: str, key: str, version: int) -> TaskSpec:
+    spec = _VERSIONS[key].get(version)
+    if spec is None:
+        have = ", ".join(f"v{v}" for v in sorted(_VERSIONS[key]))
+        raise NotFoundError(f"task {key!r} has no version {version} (registered: {have}; "
+                            f"`doabench/{key}-v{max(_VERSIONS[key])}` or `{key}` is the latest)")
+    return spec
 
 
 def register_prefix(prefix: str, resolver: Callable[[str], TaskSpec]) -> None:
@@ -139,7 +193,10 @@ def get_task_spec(task_id: str | TaskSpec) -> TaskSpec:
         return prefix[1](task_id)
     key = task_id
     if key.startswith("doabench/"):
-        key = key[len("doabench/"):].rsplit("-v", 1)[0]
+        key = key[len("doabench/"):]
+    versioned = _versioned(key)
+    if versioned is not None:
+        return _version_of(task_id, *versioned)
     if key in _TASKS:
         return _TASKS[key]
     if key in _BROKEN:

@@ -94,7 +94,7 @@ def check_trained(tracker: Tracker, keyword: bool = False) -> None:
     raise ConfigError(f"tracker {tracker.name!r} has no trained weights{what}; {hint}")
 
 
-def make_env_for(tracker: Tracker, task: str, device: str | None = None, delays: str | None = None,
+def make_env_for(tracker: Tracker, task: str | TaskSpec, device: str | None = None, delays: str | None = None,
                  **env_options: Any) -> DoaEnv:
     """The environment giving the observations a tracker reads (its ``observation_spec``), on
     ``delays`` when given (another delay mode on purpose), else on the tracker's own."""
@@ -169,14 +169,14 @@ def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
     return the results dictionary. ``partial_path``: the resume journal (None: no journal), held
     locked by the caller. ``wall_time_s`` adds up every invocation that contributed episodes."""
     check_trained(tracker, keyword=True)
-    task = get_task_spec(spec.task)
+    task = get_task_spec(spec.task_ref)
     identity = task_identity(task, env_options)
     if identity != dict(spec.task_options):  # the file's name and content must name the same episodes
         raise ConfigError(f"this run of {task.id} was named for the task options {dict(spec.task_options)} and runs "
                           f"with {identity}: build its RunSpec with the same options (RunSpec.build(..., env_options=...))")
     provenance = environment(device)  # taken before the work: the code that runs is the code recorded
     wall_start = time.perf_counter()
-    env = make_env_for(tracker, task.id, device=device, delays=spec.delays, **env_options)
+    env = make_env_for(tracker, task, device=device, delays=spec.delays, **env_options)
     cache_episodes(env)  # DOABENCH_EPISODE_CACHE: several trackers, one simulation per episode
     indices, selection = select_episodes(task, env.n_episodes, episodes, cells)
     done = load_journal(partial_path, config_hash(spec.journal_config(indices, env_options)))

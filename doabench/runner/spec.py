@@ -68,6 +68,11 @@ class RunSpec:
                    task_options=task_identity(spec, dict(env_options or {}))), instance
 
     @property
+    def task_ref(self) -> str:
+        """The task id that resolves to this run's task version (``doabench/<id>-v<version>``)."""
+        return f"doabench/{self.task}-v{self.task_version}"
+
+    @property
     def stem(self) -> str:
         """The results file stem: ``sim-demo__srp-max_16x32``, ``..__1a2b3c4d`` with options."""
         return results_stem(self.task, self.tracker, self.options, self.delays, self.weights_hash, self.task_options)
