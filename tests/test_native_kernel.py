@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import os
 import shutil
@@ -166,21 +167,91 @@ def test_a_damaged_cached_kernel_is_rebuilt(tmp_path):
     assert kernel() == "c" and so.stat().st_size > 100
 
 
+#: a shared object that says it is the kernel and, when loaded, writes the file its MARKER names
+PLANTED_C = """
+#include <stdio.h>
+__attribute__((constructor)) static void planted(void) {
+    FILE *f = fopen(MARKER, "w");
+    if (f) { fputs("planted library loaded", f); fclose(f); }
+}
+long long doabench_image_kernel_version(void) { return 5; }
+int doabench_render_images(void) { return 0; }
+"""
+
+
+def _kernel_file_name(tmp_path, monkeypatch) -> str:
+    """The cache file name of the kernel on this machine (built once into a scratch cache)."""
+    monkeypatch.setenv("DOABENCH_CACHE", str(tmp_path / "scratch"))
+    native.reload()
+    assert native.library() is not None, native.unavailable_reason()
+    (so,) = (tmp_path / "scratch").rglob("*.so")
+    native.reload()
+    return so.name
+
+
+def _plant(path, marker) -> None:
+    """A library at ``path`` that writes ``marker`` when it is loaded."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    src = path.parent / "planted.c"
+    src.write_text(f"#define MARKER {json.dumps(str(marker))}\n" + PLANTED_C)
+    cc = shutil.which("cc") or shutil.which("gcc")
+    subprocess.run([cc, "-shared", "-fPIC", "-o", str(path), str(src)], check=True, capture_output=True)
+    src.unlink()
+
+
 @needs_kernel
-def test_a_read_only_cache_folder_falls_back_to_a_temp_folder(monkeypatch, tmp_path, reloaded_kernel):
+def test_a_library_planted_in_the_temp_folder_is_never_loaded(monkeypatch, tmp_path, reloaded_kernel):
+    """With a cache folder that cannot be written, the kernel is built in a new private temporary
+    folder: a library waiting under a predictable temp path (``doabench-native-<uid>``, where an
+    earlier doabench looked) is not loaded, and none is left behind."""
+    name = _kernel_file_name(tmp_path, monkeypatch)
+    temp, marker = tmp_path / "tmp", tmp_path / "PLANTED_LOADED"
+    _plant(temp / f"doabench-native-{os.getuid()}" / name, marker)
     locked = tmp_path / "locked"
     build = native._build
 
-    def refuse_locked(cc, source, target):  # what mkdir/compile into a read-only folder raise
+    def refuse_locked(cc, source, target):  # what compiling into a read-only folder raises
         if locked in target.parents:
             raise PermissionError(13, "Permission denied", str(target.parent))
         return build(cc, source, target)
 
     monkeypatch.setenv("DOABENCH_CACHE", str(locked))
     monkeypatch.setattr(native, "_build", refuse_locked)
-    monkeypatch.setattr(native.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
+    monkeypatch.setattr(native.tempfile, "gettempdir", lambda: str(temp))
     assert native.library() is not None, native.unavailable_reason()
-    assert any((tmp_path / "tmp").rglob("*.so")) and not locked.exists()
+    assert native.kernel_name() == "c" and not marker.exists()
+    assert sorted(p.name for p in temp.iterdir()) == [f"doabench-native-{os.getuid()}"]  # the fresh folder is gone
+
+
+@pytest.mark.parametrize("how", ["folder writable by others", "file writable by others", "file is a link",
+                                 "folder is a link", "file of another user"])
+@needs_kernel
+def test_a_cache_others_could_write_is_not_trusted(monkeypatch, tmp_path, reloaded_kernel, how):
+    """A cached kernel is loaded only from a folder of the current user's that nobody else may
+    write, and only when the file is that user's, not writable by others and not a link: otherwise
+    it is built again (in place, in a private folder; afresh in a temporary one otherwise)."""
+    if how == "file of another user" and os.getuid() != 0:
+        pytest.skip("giving a file to another user needs root")
+    name = _kernel_file_name(tmp_path, monkeypatch)
+    cache, marker = tmp_path / "cache", tmp_path / "PLANTED_LOADED"
+    folder = cache / "native"
+    planted = (tmp_path / "elsewhere" / name) if how.endswith("link") else folder / name
+    _plant(planted, marker)
+    folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+    if how == "folder writable by others":
+        folder.chmod(0o777)
+    elif how == "file writable by others":
+        planted.chmod(0o666)
+    elif how == "file is a link":
+        (folder / name).symlink_to(planted)
+    elif how == "folder is a link":
+        folder.rmdir()
+        folder.symlink_to(planted.parent, target_is_directory=True)
+    else:
+        os.chown(planted, 65534, 65534)
+    monkeypatch.setenv("DOABENCH_CACHE", str(cache))
+    assert native.library() is not None, native.unavailable_reason()
+    assert native.kernel_name() == "c" and not marker.exists(), how
 
 
 def test_largest_tap_errors_of_the_two_approximations():

@@ -14,6 +14,14 @@ well under a second; the shared object is cached per source, compiler and CPU un
 ``$DOABENCH_CACHE`` (default ``$XDG_CACHE_HOME/doabench`` or ``~/.cache/doabench``) and written
 atomically (several worker processes may build it at once).
 
+Loading a shared object runs its code, so one is loaded only from a **private** folder: a folder
+(not a symbolic link) that the current user owns and that neither group nor others may write,
+holding a regular file (not a link) of that user's without group or other write bits. The cache
+folder is created so (mode 0700). A cached file that fails the check is built again in place; a
+cache folder that fails it (or that cannot be created or written) is not used at all: the kernel
+is built afresh in a new private temporary folder (``tempfile.mkdtemp``), loaded from there and
+the folder removed. No file that another user could have placed is ever loaded.
+
 ``DOABENCH_NATIVE=0`` turns the kernel off (the torch path runs).
 """
 from __future__ import annotations
@@ -24,6 +32,7 @@ import hashlib
 import os
 import platform
 import shutil
+import stat
 import subprocess
 import tempfile
 import threading
@@ -69,15 +78,67 @@ def _cpu_signature() -> str:
     return platform.machine() + platform.processor()
 
 
+def _private(path: Path, kind: int) -> bool:
+    """``path`` is a ``kind`` (``stat.S_IFDIR`` or ``stat.S_IFREG``), not a symbolic link, owned by
+    the current user, with no group or other write bit."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return False
+    return stat.S_IFMT(st.st_mode) == kind and st.st_uid == os.getuid() and not st.st_mode & 0o022
+
+
+def _private_folder(folder: Path) -> bool:
+    """Create ``folder`` (mode 0700) if it is missing; whether it is private (:func:`_private`)."""
+    try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    except OSError:  # a read-only or unusable cache location
+        return False
+    return _private(folder, stat.S_IFDIR)
+
+
 def _build(cc: str, source: bytes, target: Path) -> None:
-    target.parent.mkdir(parents=True, exist_ok=True)
+    """Compile into ``target``'s folder (a private one), then rename into place: the file is the
+    current user's, mode 0700."""
     with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
         src = Path(tmp) / SOURCE
         src.write_bytes(source)
         obj = Path(tmp) / target.name
         subprocess.run([cc, *FLAGS, "-o", str(obj), str(src), "-lm"], check=True,
                        capture_output=True, timeout=120)
+        os.chmod(obj, 0o700)
         os.replace(obj, target)  # atomic: concurrent builders write the same bytes
+
+
+def _cached(cc: str, source: bytes, target: Path) -> ctypes.CDLL | None:
+    """The kernel from the private cache folder of ``target``: loaded when the file there passes
+    :func:`_private`, else built there first; None when that folder cannot be used."""
+    if not _private_folder(target.parent):
+        return None
+    try:
+        if not _private(target, stat.S_IFREG):  # missing, or not a file only this user can change
+            _build(cc, source, target)
+        try:
+            return ctypes.CDLL(str(target))
+        except OSError:  # a damaged cache file (e.g. cut short by a crash): build it again, once
+            _build(cc, source, target)
+            return ctypes.CDLL(str(target))
+    except OSError:  # a cache folder this user may not write after all (read-only, full): build elsewhere
+        return None
+
+
+def _fresh(cc: str, source: bytes, name: str) -> ctypes.CDLL:
+    """The kernel built afresh in a new private temporary folder, loaded, the folder removed."""
+    folder = Path(tempfile.mkdtemp(prefix="doabench-native-"))
+    try:
+        target = folder / name
+        _build(cc, source, target)
+        return ctypes.CDLL(str(target))
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _load():
@@ -93,21 +154,9 @@ def _load():
         return None, f"{cc} --version failed: {exc}"
     key = hashlib.sha256(b"\0".join([source, version.encode(), " ".join(FLAGS).encode(),
                                      _cpu_signature().encode()])).hexdigest()[:20]
-    target = _cache_dir() / f"image_sources-{key}.so"
+    name = f"image_sources-{key}.so"
     try:
-        if not target.exists():
-            try:
-                _build(cc, source, target)
-            except PermissionError:  # a read-only cache folder (e.g. a locked-down home): a private temp one
-                target = Path(tempfile.gettempdir()) / f"doabench-native-{os.getuid()}" / target.name
-                if not target.exists():
-                    _build(cc, source, target)
-        try:
-            lib = ctypes.CDLL(str(target))
-        except OSError:  # a damaged cache file (e.g. cut short by a crash): build it again, once
-            target.unlink(missing_ok=True)
-            _build(cc, source, target)
-            lib = ctypes.CDLL(str(target))
+        lib = _cached(cc, source, _cache_dir() / name) or _fresh(cc, source, name)
     except (OSError, subprocess.SubprocessError) as exc:
         return None, f"building {SOURCE} failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
     if lib.doabench_image_kernel_version() != KERNEL_VERSION:
