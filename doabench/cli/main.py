@@ -37,6 +37,7 @@ SUBCOMMAND_MODULES = (
     "export",
     "leaderboard",
     "compare",
+    "locata_eval",
     "sweep",
     "plot",
 )
