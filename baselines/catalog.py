@@ -59,18 +59,80 @@ class NamedWeights:
         return W.read_manifest(W.SHIPPED_DIR).get(self.file)
 
 
+#: what an entry of ``weights`` holds: required keys, then optional ones, with their types
+ENTRY_KEYS: dict[str, tuple[type, ...]] = {"tracker": (str,), "name": (str,), "file": (str,)}
+OPTIONAL_KEYS: dict[str, tuple[type, ...]] = {"run": (str, type(None)), "task": (str, type(None)), "headline": (dict,)}
+
+
 def read_catalog(folder: str | Path | None = None) -> dict[str, Any]:
-    """The catalog as stored (``{"weights": [], "defaults": {}}`` where a folder has none)."""
-    path = Path(folder or W.SHIPPED_DIR) / CATALOG_NAME
+    """The catalog as stored (``{"weights": [], "defaults": {}}`` where a folder has none), checked
+    by :func:`check_catalog`: a damaged or edited catalog is a one-line InputError."""
+    folder = Path(folder or W.SHIPPED_DIR)
+    path = folder / CATALOG_NAME
     if not path.is_file():
         return {"format": FORMAT, "weights": [], "defaults": {}}
     try:
         data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path} is not valid JSON ({exc}); reinstall doabench") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise InputError(f"{path} is not valid JSON ({type(exc).__name__}: {exc}); reinstall doabench") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f"{path} is not a {FORMAT} catalog; reinstall doabench")
+    check_catalog(data, path, folder)
     return data
+
+
+def check_catalog(data: Mapping[str, Any], path: Path, folder: Path) -> None:
+    """The catalog's schema: ``weights`` a list of entries with the keys and types of
+    :data:`ENTRY_KEYS` and :data:`OPTIONAL_KEYS`, one entry per tracker and name and per file, each
+    ``file`` a plain file name in the weights folder (no folder part, no ``..``, not absolute,
+    ``.safetensors``) that is not a symbolic link or anything but a regular file; ``defaults`` a
+    mapping of texts. An InputError naming the entry otherwise."""
+    entries, defaults = data.get("weights", []), data.get("defaults", {})
+    if not isinstance(entries, list) or not isinstance(defaults, dict):
+        raise InputError(f"{path}: \"weights\" must be a list and \"defaults\" a mapping; reinstall doabench")
+    bad_default = next((k for k, v in defaults.items() if not isinstance(v, str)), None)
+    if bad_default is not None:
+        raise InputError(f"{path}: the default of {bad_default!r} is not a text; reinstall doabench")
+    names: dict[tuple[str, str], int] = {}
+    files: dict[str, int] = {}
+    for number, entry in enumerate(entries, start=1):
+        where = f"{path}: weights entry {number}"
+        if not isinstance(entry, dict):
+            raise InputError(f"{where} is not a mapping; reinstall doabench")
+        missing = [k for k in ENTRY_KEYS if k not in entry]
+        if missing:
+            raise InputError(f"{where} lacks {', '.join(map(repr, missing))}; reinstall doabench")
+        for key, types in {**ENTRY_KEYS, **OPTIONAL_KEYS}.items():
+            if key in entry and not isinstance(entry[key], types):
+                raise InputError(f"{where}: {key!r} is {type(entry[key]).__name__}, not "
+                                 f"{' or '.join('null' if t is type(None) else t.__name__ for t in types)}; "
+                                 "reinstall doabench")
+        tracker, name, file = entry["tracker"], entry["name"], entry["file"]
+        where = f"{path}: weights {tracker} {name!r} (entry {number})"
+        if (tracker, name) in names:
+            raise InputError(f"{where}: entry {names[tracker, name]} has that tracker and name too; a name "
+                             "names one file; reinstall doabench")
+        if file in files:
+            raise InputError(f"{where}: file {file!r} is listed by entry {files[file]} too; reinstall doabench")
+        names[tracker, name], files[file] = number, number
+        confined_file(folder, file, where)
+
+
+def confined_file(folder: Path, file: str, where: str) -> Path:
+    """``folder / file`` for a catalog's ``file``: refused in one line unless ``file`` is a plain
+    ``.safetensors`` file name (no folder part, not ``..``, not absolute) whose path is not a
+    symbolic link, and is a regular file where it exists."""
+    plain = bool(file) and "/" not in file and "\\" not in file and file not in (".", "..") and Path(file).name == file
+    if not plain or not file.endswith(".safetensors"):
+        raise InputError(f"{where}: file {file!r} is not a .safetensors file name in {folder}; shipped weights "
+                         "lie in the weights folder itself; reinstall doabench")
+    target = folder / file
+    if target.is_symlink():
+        raise InputError(f"{where}: {target} is a symbolic link; shipped weights are regular files in {folder}; "
+                         "reinstall doabench")
+    if target.exists() and not target.is_file():
+        raise InputError(f"{where}: {target} is not a regular file; reinstall doabench")
+    return target
 
 
 def tracker_id(model_name: str, resolution: tuple[int, int] | None) -> str:
@@ -87,6 +149,8 @@ def all_named() -> list[NamedWeights]:
                 for e in entries]
     found = []
     for path in sorted(Path(W.SHIPPED_DIR).glob("*.safetensors")):
+        if path.is_symlink() or not path.is_file():  # shipped weights are regular files of the folder
+            continue
         head, _, tail = path.stem.rpartition("-")
         try:  # cross3d-16x32, max-cnn1d-64x128: the last part is a resolution
             resolution = W.parse_resolution(tail) if head else None

@@ -110,7 +110,10 @@ def save_weights(path: str | Path, model: nn.Module, metadata: Mapping[str, Any]
 
 
 def _is_shipped(path: str | Path) -> bool:
-    return Path(path).resolve().parent == Path(SHIPPED_DIR).resolve()
+    """A file of the shipped folder: named in it (a link there included), or a link to a file in it."""
+    here = Path(SHIPPED_DIR).resolve()
+    path = Path(path)
+    return path.absolute().parent.resolve() == here or path.resolve().parent == here
 
 
 def read_manifest(folder: str | Path | None = None) -> dict[str, str]:
@@ -138,11 +141,23 @@ def update_manifest(path: str | Path) -> None:
 
 def verify_shipped(path: str | Path) -> None:
     """A shipped weight file must match its SHA-256 in the manifest (flipped bytes, a truncated or
-    replaced file are refused)."""
+    replaced file are refused), however it is reached: by its name in the shipped folder, which
+    must then be a regular file there and not a link out of it, or through a link elsewhere to
+    such a file."""
     path = Path(path)
-    want = read_manifest(path.parent).get(path.name)
+    folder = Path(SHIPPED_DIR)
+    if path.absolute().parent.resolve() == folder.resolve():  # named in the shipped folder
+        if path.is_symlink():
+            raise InputError(f"weights file {path} is a symbolic link; shipped weights are regular files in {folder}")
+        name = path.name
+    else:  # a link elsewhere to a shipped file
+        name = path.resolve().name
+    if not path.is_file():
+        raise NotFoundError(f"weights file {path} does not exist") if not path.exists() else InputError(
+            f"weights file {path} is not a regular file")
+    want = read_manifest(folder).get(name)
     if want is None:
-        raise InputError(f"weights file {path} is not listed in {path.parent / MANIFEST_NAME}; shipped weights "
+        raise InputError(f"weights file {path} is not listed in {folder / MANIFEST_NAME}; shipped weights "
                          "are loaded only when their SHA-256 is recorded there")
     have = sha256_file(path)
     if have != want:
@@ -201,6 +216,8 @@ def _open(path: str | Path):
             raise InputError(training_run_hint(path, _checkpoint_tracker(checkpoint)))
         raise InputError(f"weights file {path} is a folder; give a .safetensors weights file")
     if not path.is_file():
+        if path.exists():  # a FIFO, a device (/dev/zero), a socket
+            raise InputError(f"weights file {path} is not a regular file; give a .safetensors weights file")
         raise NotFoundError(f"weights file {path} does not exist")
     try:
         return safe_open(str(path), framework="pt", device="cpu")

@@ -191,3 +191,116 @@ def test_a_nan_network_output_is_an_error_not_a_held_direction(cross3d_file):
         tracker.direction_from_output(np.array([np.nan, 0.0, 0.0]))
     np.testing.assert_allclose(tracker.direction_from_output(np.array([1e200, 0.0, 0.0])), [1, 0, 0])
     np.testing.assert_allclose(tracker.direction_from_output(np.zeros(3)), [1, 0, 0])  # zero: the previous one is kept
+
+
+#: the shipped folder (tests below put a copy in its place)
+SHIPPED = W.SHIPPED_DIR
+
+
+def _weights_folder(tmp_path, monkeypatch, entries=(), edit=None):
+    """A copy of the shipped folder holding the paper weights of cross3d:16x32, its manifest and its
+    catalog, with ``entries`` added to the catalog (then ``edit(catalog)``), used as the shipped folder."""
+    import shutil
+
+    folder = tmp_path / "weights"
+    folder.mkdir(exist_ok=True)
+    real = SHIPPED
+    for name in ("cross3d-16x32.safetensors", "SHA256SUMS", "catalog.json"):
+        shutil.copy(real / name, folder / name)
+    catalog = json.loads((folder / "catalog.json").read_text())
+    catalog["weights"] = [e for e in catalog["weights"] if e["file"] == "cross3d-16x32.safetensors"] + list(entries)
+    if edit is not None:
+        edit(catalog)
+    (folder / "catalog.json").write_text(json.dumps(catalog))
+    monkeypatch.setattr(W, "SHIPPED_DIR", folder)
+    return folder
+
+
+def _tampered(path):
+    """A copy of the paper weights with one tensor value changed: a valid file that is not shipped."""
+    from safetensors.torch import load_file, save_file
+    from safetensors import safe_open
+
+    with safe_open(str(SHIPPED / "cross3d-16x32.safetensors"), framework="pt") as f:
+        meta = f.metadata()
+    state = load_file(str(SHIPPED / "cross3d-16x32.safetensors"))
+    first = sorted(state)[0]
+    state[first] = state[first] + 0.5
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_file(state, str(path), metadata=meta)
+    return path
+
+
+def _describe(capsys, weights):
+    from doabench.cli.main import main
+
+    capsys.readouterr()
+    code = main(["describe", "--tracker", "cross3d:16x32", "--tracker-opt", f"weights={weights}"])
+    return code, capsys.readouterr().err.strip()
+
+
+@pytest.mark.parametrize("how", ["parent folder", "absolute path", "link out of the folder"])
+def test_a_catalog_entry_cannot_point_outside_the_weights_folder(tmp_path, monkeypatch, capsys, how):
+    """An edited catalog whose entry names a file outside the weights folder (``../``, an absolute
+    path, a link in the folder to a file elsewhere) is refused in one line: the tampered file, which
+    SHA256SUMS does not list, never runs under a shipped name."""
+    outside = _tampered(tmp_path / "elsewhere" / "evil.safetensors")
+    file = {"parent folder": "../elsewhere/evil.safetensors", "absolute path": str(outside),
+            "link out of the folder": "evil.safetensors"}[how]
+    folder = _weights_folder(tmp_path, monkeypatch, [{"tracker": "cross3d:16x32", "name": "evil", "file": file}])
+    if how == "link out of the folder":
+        (folder / "evil.safetensors").symlink_to(outside)
+    code, err = _describe(capsys, "evil")
+    assert code == 2 and len(err.splitlines()) == 1 and "catalog.json" in err, err
+    assert ("symbolic link" if how.startswith("link") else "is not a .safetensors file name") in err
+
+
+def test_a_link_in_the_weights_folder_given_by_path_is_refused(tmp_path, monkeypatch, capsys):
+    """A file reached through the shipped folder is checked against SHA256SUMS however it is named:
+    a link there to a tampered file is refused, a link elsewhere to a shipped file is checked."""
+    import shutil
+
+    folder = _weights_folder(tmp_path, monkeypatch)
+    outside = _tampered(tmp_path / "elsewhere" / "cross3d-16x32-moving.safetensors")
+    (folder / "cross3d-16x32-moving.safetensors").symlink_to(outside)
+    code, err = _describe(capsys, folder / "cross3d-16x32-moving.safetensors")
+    assert code == 2 and len(err.splitlines()) == 1 and "symbolic link" in err, err
+    link = tmp_path / "mine" / "paper.safetensors"
+    link.parent.mkdir()
+    link.symlink_to(folder / "cross3d-16x32.safetensors")
+    assert _describe(capsys, link)[0] == 0  # the shipped file, checked, through a link
+    shutil.copy(outside, folder / "cross3d-16x32.safetensors")  # the shipped file replaced
+    code, err = _describe(capsys, link)
+    assert code == 2 and "does not match" in err, err
+
+
+def test_catalog_names_are_unique_and_entries_complete(tmp_path, monkeypatch, capsys):
+    """Two entries of one tracker and name are refused (not the last one silently), and so is an
+    entry that lacks a key or has one of the wrong type: one line each, no traceback."""
+    _tampered(tmp_path / "weights" / "cross3d-16x32-copy.safetensors")
+    _weights_folder(tmp_path, monkeypatch, [{"tracker": "cross3d:16x32", "name": "paper",
+                                             "file": "cross3d-16x32-copy.safetensors"}])
+    code, err = _describe(capsys, "paper")
+    assert code == 2 and len(err.splitlines()) == 1 and "has that tracker and name too" in err, err
+    for broken, words in ([{"tracker": "cross3d:16x32", "name": "nofile"}, "lacks 'file'"],
+                          [{"tracker": "cross3d:16x32", "name": 7, "file": "x.safetensors"}, "'name' is int"],
+                          ["just text", "is not a mapping"]):
+        import shutil
+
+        shutil.rmtree(tmp_path / "weights")
+        _weights_folder(tmp_path, monkeypatch, [broken])
+        code, err = _describe(capsys, "paper")
+        assert code == 2 and len(err.splitlines()) == 1 and words in err, err
+
+
+@pytest.mark.parametrize("kind", ["fifo", "/dev/zero"])
+def test_weights_that_are_not_a_regular_file_are_named_so(tmp_path, capsys, kind):
+    import os
+
+    path = tmp_path / "w.safetensors"
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:
+        path = "/dev/zero"
+    code, err = _describe(capsys, path)
+    assert code == 2 and len(err.splitlines()) == 1 and "is not a regular file" in err, err
