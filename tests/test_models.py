@@ -170,3 +170,25 @@ def test_seldnet_shapes_and_non_causality():
         y2 = model(x2)
     assert y.shape == (1, 12, 3)
     assert not torch.equal(y[:, 0], y2[:, 0])  # the last frame changes the first output: offline model
+
+
+def test_widened_cross3d_feeds_its_1d_layer_what_the_coarse_network_did():
+    """A warm start of 32x64 from 16x32 weights: the 3D convolutions are copied, and on maps whose
+    2x2 finer cells repeat the coarse cells the widened 1D layer's pre-activation equals the coarse
+    one's where the 3D features repeat too (no map padding effect: a constant map)."""
+    from doabench_baselines.cross3d import widen_state
+
+    torch.manual_seed(0)
+    coarse, fine = Cross3D(16, 32), Cross3D(32, 64)
+    fine.load_state_dict(widen_state(coarse.state_dict(), (16, 32), (32, 64)))
+    for name, value in coarse.state_dict().items():
+        if not name.startswith("hidden."):
+            assert torch.equal(fine.state_dict()[name], value), name
+    assert torch.equal(fine.state_dict()["hidden.conv.bias"], coarse.state_dict()["hidden.conv.bias"])
+    x = torch.rand(1, 3, 12, 1, 1)  # a map constant over directions, changing in time
+    yc, yf = coarse(x.expand(1, 3, 12, 16, 32)), fine(x.expand(1, 3, 12, 32, 64))
+    assert torch.allclose(yc, yf, atol=1e-5)
+    with pytest.raises(ConfigError, match="whole multiple"):
+        widen_state(coarse.state_dict(), (16, 32), (24, 48))
+    with pytest.raises(ConfigError, match="pooling blocks"):
+        widen_state(Cross3D(8, 16).state_dict(), (8, 16), (16, 32))  # 3 blocks against 4

@@ -628,3 +628,21 @@ def test_the_frame_difference_loss_trains_is_recorded_and_a_resume_must_agree(tm
         err = capsys.readouterr().err.strip()
         assert "--delta-loss" in err and "\n" not in err and "Traceback" not in err
         assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("source, options, message", [
+    ("seldnet", [], "needs weights of 'cross3d'"),
+    ("cross3d:16x32", ["weights=random"], "no trained weights"),
+    ("cross3d:8x16", ["weights=paper"], "pooling blocks"),
+])
+def test_a_warm_start_from_other_weights_is_refused_before_training(tmp_path, capsys, source, options, message):
+    from doabench.cli.main import main as cli
+
+    out = tmp_path / "run"
+    args = ["train", "--tracker", "cross3d:32x64", "--warm-start", source, "--out", str(out), "--quiet"]
+    for option in options:
+        args += ["--warm-start-opt", option]
+    assert cli(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
