@@ -360,3 +360,34 @@ def test_a_name_in_a_results_file_loads_no_plug_in(tmp_path: Path, monkeypatch) 
     runs = [cmp.load_run(folder / "sim-grid__evil.json"), cmp.load_run(folder / "sim-grid__srp-max_8x16.json")]
     assert "`evil:16x32 (weights=evil.safetensors)`" in cmp.markdown([cmp.compare(*runs)])
     assert "evilmod" not in sys.modules and not (tmp_path / "IMPORTED").exists()
+
+
+def test_a_deeply_nested_json_file_is_named_and_skipped(results_dir: Path, tmp_path: Path, capsys) -> None:
+    """JSON nested deeper than any results file is never parsed: the leaderboard names it and ranks
+    the other files; ``compare`` refuses it in one line."""
+    (results_dir / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    (results_dir / "deep-object.json").write_text('{"a": ' * 5000 + "1" + "}" * 5000)
+    (results_dir / "quoted.json").write_text(json.dumps({"text": "[" * 1000}))  # brackets in a string: shallow
+    capsys.readouterr()
+    assert cli(["leaderboard", "--results", str(results_dir), "--out", str(tmp_path / "boards")]) == 0
+    err = capsys.readouterr().err
+    for name, depth in (("deep.json", 100_000), ("deep-object.json", 5000)):
+        lines = [line for line in err.splitlines() if name in line]
+        assert len(lines) == 1 and "skipped" in lines[0] and f"nested {depth} levels deep" in lines[0], err
+    assert "quoted.json" in err and 'no "schema" field' in err
+    assert (tmp_path / "boards" / "sim-grid.md").is_file()
+    assert cli(["compare", str(results_dir / "deep.json"), str(results_dir / "sim-grid__srp-max_8x16.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "nested 100000 levels deep" in err
+
+
+def test_a_results_folder_entry_that_is_no_regular_file_is_named_and_skipped(results_dir: Path, tmp_path: Path,
+                                                                             capsys) -> None:
+    """A FIFO or a folder named ``*.json`` is not opened for reading (a FIFO would block): named, skipped."""
+    os.mkfifo(results_dir / "pipe.json")
+    (results_dir / "folder.json").mkdir()
+    capsys.readouterr()
+    assert cli(["leaderboard", "--results", str(results_dir), "--out", str(tmp_path / "boards")]) == 0
+    err = capsys.readouterr().err
+    for name in ("pipe.json", "folder.json"):
+        assert any(name in line and "not a regular file" in line for line in err.splitlines()), err

@@ -19,7 +19,6 @@ from __future__ import annotations
 import csv
 import hashlib
 import io
-import json
 import math
 import sys
 from dataclasses import dataclass, field
@@ -28,7 +27,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 from doabench.errors import InputError
 from doabench.results.labels import run_label
-from doabench.results.schema import results_problem
+from doabench.results.schema import JsonBoundsError, read_json, results_problem
 
 SCHEMA_PREFIX = "doabench.results/"
 SUPPORTED_SCHEMAS = ("doabench.results/1",)
@@ -154,11 +153,15 @@ def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
     for path in sorted(folder.glob("*.json")):
         if path.name.startswith("."):  # doabench's own temporary files
             continue
-        data = path.read_bytes()
         try:
-            results = json.loads(data)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"{path} is not valid JSON ({exc}); fix or remove it") from None
+            data, results = read_json(path)
+        except JsonBoundsError as exc:  # a FIFO, a huge or a deeply nested file: no results file, never parsed
+            warn(f"skipped {display_path(path)}: {exc.reason}")
+            continue
+        except OSError as exc:
+            raise InputError(f"{path} cannot be read ({exc.strerror or exc})") from None
+        except InputError as exc:
+            raise InputError(f"{exc}; fix or remove it") from None
         problem = results_problem(results)
         if problem:
             warn(f"skipped {display_path(path)}: {problem}")

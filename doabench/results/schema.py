@@ -5,16 +5,22 @@ dictionary (or a loaded file) against it with ``jsonschema`` (a test dependency;
 ``pip install jsonschema`` to validate in your own code). ``results_problem(data)`` says, without
 ``jsonschema``, why a loaded JSON file is not a results file the leaderboards can read (the same
 answer whatever is installed). ``load_results(path)`` reads a results file, or says in one line
-why it cannot. docs/results-format.md documents the fields.
+why it cannot; every results reader goes through ``read_json(path)``, which reads only regular
+files of at most :data:`MAX_JSON_BYTES` nested at most :data:`MAX_JSON_DEPTH` deep.
+docs/results-format.md documents the fields.
 """
 from __future__ import annotations
 
 import functools
 import json
 import math
+import re
+import stat
 from importlib import resources
 from pathlib import Path
 from typing import Any, Sequence
+
+import numpy as np
 
 from doabench.errors import InputError
 
@@ -24,6 +30,60 @@ LEADERBOARD_SECTIONS = ("task", "tracker", "summary", "environment")
 _JSON_TYPES: dict[str, tuple[type, ...]] = {"string": (str,), "integer": (int,), "number": (int, float),
                                             "boolean": (bool,), "object": (dict,), "array": (list,),
                                             "null": (type(None),)}
+
+
+#: the largest JSON file read as results, in bytes: far above any run's (a grid of hundreds of
+#: episodes with per-frame estimates is tens of MB)
+MAX_JSON_BYTES = 1 << 30
+#: the deepest nesting of arrays and objects read: a results file nests under 10 levels; deeper is
+#: no results file, and parsing or walking it could exhaust Python's stack
+MAX_JSON_DEPTH = 64
+_STRING = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"')
+_NOT_BRACKETS = bytes(b for b in range(256) if b not in b"[]{}")
+
+
+class JsonBoundsError(InputError):
+    """A file that is not parsed at all: not a regular file, larger than :data:`MAX_JSON_BYTES` or
+    nested deeper than :data:`MAX_JSON_DEPTH`. ``reason`` says which, without the path."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.reason = reason
+
+
+def json_depth(text: bytes) -> int:
+    """The deepest nesting of arrays and objects in JSON text (brackets inside strings skipped),
+    found without parsing it."""
+    brackets = _STRING.sub(b"", text).translate(None, _NOT_BRACKETS)
+    if not brackets:
+        return 0
+    codes = np.frombuffer(brackets, dtype=np.uint8)
+    return int(np.cumsum(np.where((codes == ord("[")) | (codes == ord("{")), 1, -1)).max())
+
+
+def read_json(path: str | Path) -> tuple[bytes, Any]:
+    """``(bytes, parsed)`` of a JSON file that may come from anyone: a JsonBoundsError for one that is
+    not a regular file, is larger than :data:`MAX_JSON_BYTES` or nests deeper than
+    :data:`MAX_JSON_DEPTH` (checked before parsing); an InputError for text that is not JSON;
+    OSError (``FileNotFoundError`` ...) as the system raises it."""
+    path = Path(path)
+    info = path.stat()
+    if not stat.S_ISREG(info.st_mode):
+        raise JsonBoundsError(path, "not a regular file")
+    if info.st_size > MAX_JSON_BYTES:
+        raise JsonBoundsError(path, f"{info.st_size} bytes, more than the {MAX_JSON_BYTES} a results file may have")
+    with open(path, "rb") as f:
+        data = f.read(MAX_JSON_BYTES + 1)
+    if len(data) > MAX_JSON_BYTES:
+        raise JsonBoundsError(path, f"more than the {MAX_JSON_BYTES} bytes a results file may have")
+    depth = json_depth(data)
+    if depth > MAX_JSON_DEPTH:
+        raise JsonBoundsError(path, f"nested {depth} levels deep, more than the {MAX_JSON_DEPTH} a results file "
+                                    "may have")
+    try:
+        return data, json.loads(data)
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise InputError(f"{path} is not valid JSON ({exc})") from None
 
 
 @functools.lru_cache(maxsize=1)
@@ -103,14 +163,14 @@ def _is_type(value: Any, name: str) -> bool:
 def load_results(path: str | Path) -> dict[str, Any]:
     """A results JSON written by ``doabench run``; a one-line InputError naming the reason otherwise."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path} is a folder; give results JSON files")
     try:
-        data = json.loads(path.read_text())
+        _, data = read_json(path)
     except FileNotFoundError:
         raise InputError(f"results file {path} does not exist") from None
-    except IsADirectoryError:
-        raise InputError(f"{path} is a folder; give results JSON files") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path} is not valid JSON ({exc})") from None
+    except OSError as exc:
+        raise InputError(f"results file {path} cannot be read ({exc.strerror or exc})") from None
     if not (isinstance(data, dict) and str(data.get("schema", "")).startswith("doabench.results/")):
         raise InputError(f"{path} is not a doabench results file (no doabench.results schema)")
     return data

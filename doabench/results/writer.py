@@ -13,6 +13,7 @@ from doabench.errors import InputError
 from doabench.files import atomic_path, file_stem, write_json
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
 from doabench.results.labels import run_label
+from doabench.results.schema import read_json
 
 
 def _name_options(options: Mapping[str, Any] | None, weights_hash: str | None) -> dict[str, Any]:
@@ -92,11 +93,11 @@ def check_overwrite(path: str | Path, config: Mapping[str, Any], overwrite: bool
     if overwrite or not path.exists():
         return
     try:
-        data = json.loads(path.read_text())
+        _, data = read_json(path)
         old = results_configuration(data)
         task = data.get("task") or {}
         old_complete = bool(task.get("complete", task.get("episodes_run") == task.get("episodes_total")))
-    except (OSError, ValueError, AttributeError, TypeError):
+    except (OSError, InputError, ValueError, AttributeError, TypeError):
         raise InputError(f"{path} exists and is not a readable results file; move it away or pass --overwrite "
                          "(Python: overwrite=True)") from None
     if dict(old) != dict(config):
@@ -137,9 +138,9 @@ def alias_files(results: Mapping[str, Any], out_dir: str | Path) -> list[Path]:
         if path.name == target.name:
             continue
         try:
-            old = json.loads(path.read_text())
+            _, old = read_json(path)
             config = {**results_configuration(old), "tracker": canonical_id(old)}
-        except (OSError, ValueError, AttributeError, TypeError, KeyError):
+        except (OSError, InputError, ValueError, AttributeError, TypeError, KeyError):
             continue
         if config == want:
             found.append(path)
