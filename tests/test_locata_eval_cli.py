@@ -213,3 +213,40 @@ def test_a_submission_without_the_task_or_array_is_refused(corpus, tmp_path, cap
     assert _eval(root, tmp_path / "nowhere", tmp_path / "r.json") == 2
     assert "is not a folder" in capsys.readouterr().err
     assert not (tmp_path / "r.json").exists()
+
+
+# -- every LOCATA run reports the measures and writes its submission --------------------------------
+def test_a_locata_run_reports_the_measures_and_writes_the_submission_locata_eval_scores(corpus, tmp_path, capsys):
+    root, _ = corpus
+    sub, runs = tmp_path / "sub", tmp_path / "runs"
+    assert main(["run", "--tracker", "srp-max:8x16", "--task", "locata-1", "--locata-root", str(root), "--quiet",
+                 "--out", str(runs), "--locata-submission", str(sub)]) == 0
+    assert "wrote the LOCATA submission of 1 recording(s)" in capsys.readouterr().out
+    results = json.loads((runs / "locata-1__srp-max_8x16.json").read_text())
+    block = results["locata"]
+    assert {"recordings", "official", "corrected", "srp_dnn"} <= set(block)
+    assert block["srp_dnn"]["accuracy"] > 0.9 and block["official"]["pd"] > 0.9
+    lines = (sub / "task1" / "recording1" / "benchmark2" / "source_1.txt").read_text().splitlines()
+    rec = find_recordings(root, "dev", 1, "benchmark2")[0]
+    assert len(lines) == len(rec.required_time_file.read_text().splitlines())  # one row per required stamp
+    assert lines[1].endswith("\tNaN\tNaN")  # before the first frame has ended
+    for mode in ("official", "corrected"):
+        assert _eval(root, sub, tmp_path / f"{mode}.json", "--measures", mode) == 0
+        scored = json.loads((tmp_path / f"{mode}.json").read_text())
+        ours, theirs = block["recordings"][0][mode], scored["recordings"][0]
+        assert ours["far"] == pytest.approx(theirs["far"])
+        for key in ("az_error_deg", "az_error_ungated_deg", "pd"):
+            mine = ours["sources"]["loudspeaker1"][key]
+            assert mine == pytest.approx(theirs["sources"]["loudspeaker1"][key], abs=1e-6)
+        assert block[mode]["ospa_deg"]["1"] == pytest.approx(scored["tasks"]["1"]["benchmark2"]["ospa_deg"]["1"])
+
+
+def test_locata_submission_is_refused_without_frames_or_off_locata(corpus, tmp_path, capsys):
+    root, _ = corpus
+    base = ["run", "--tracker", "srp-max:4x8", "--quiet", "--out", str(tmp_path / "runs"), "--locata-submission",
+            str(tmp_path / "sub")]
+    assert main([*base, "--task", "locata-1", "--locata-root", str(root), "--no-frames"]) == 2
+    assert "leave out --no-frames" in capsys.readouterr().err
+    assert main([*base, "--task", "sim-demo"]) == 2
+    assert "applies to LOCATA tasks" in capsys.readouterr().err
+    assert not (tmp_path / "sub").exists() and not (tmp_path / "runs").exists()

@@ -250,3 +250,31 @@ def test_task_averages_pool_periods_and_stamps_and_average_recordings():
     # OSPA over every defined stamp: a's four at 1, 1, 3, 3; b's three at 30 (track only), 8, 8
     assert avg["ospa_deg"]["1"] == pytest.approx((1 + 1 + 3 + 3 + 30 + 8 + 8) / 7)
     assert avg["swaps"] == 0 and avg["latency_s"] == 0.0
+
+
+# -- SRP-DNN's protocol and a run's track on the stamps ---------------------------------------------
+def test_srp_dnn_protocol_scores_correct_stamps_only():
+    from doabench.locata.srpdnn import recording_mean, srp_dnn_scores
+
+    truth = np.zeros(5)
+    est = R([10.0, 40.0, np.nan, -20.0, 80.0])  # the last stamp is silent: not scored
+    got = srp_dnn_scores(truth, R(np.full(5, 90.0)), [1, 1, 1, 1, 0], est, R([95.0, 90, 90, 87.0, 90]))
+    assert got["accuracy"] == pytest.approx(2 / 4)  # 10 and -20 are within 30 degrees; 40 and none are not
+    assert got["az_mae_deg"] == pytest.approx(15.0) and got["az_rmse_deg"] == pytest.approx(math.sqrt(250.0))
+    assert got["inc_mae_deg"] == pytest.approx(4.0) and got["inc_rmse_deg"] == pytest.approx(math.sqrt(17.0))
+    silent = srp_dnn_scores(truth, truth, np.zeros(5), est, est)
+    assert all(math.isnan(v) for v in silent.values())
+    assert recording_mean([got, silent, {"accuracy": 1.0}])["accuracy"] == pytest.approx(0.75)
+
+
+def test_a_stamp_takes_the_latest_frame_that_has_ended():
+    from doabench.locata.stamps import locata_angles
+    from doabench.locata.tracks import frame_ends, stamp_track
+
+    # +y is LOCATA's azimuth 0, +x is -90 degrees; inclination from +z
+    az, inc = locata_angles(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 2.0]]))
+    assert np.degrees(az[:2]) == pytest.approx([0.0, -90.0]) and np.degrees(inc) == pytest.approx([90, 90, 0])
+    ends = frame_ends(0.5, np.array([0.25, 0.75]), window=8000, fs=16000)  # windows of 0.5 s
+    assert ends == pytest.approx([1.0, 1.5])
+    az, _ = stamp_track(np.array([0.9, 1.0, 1.2, 1.5, 3.0]), ends, np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]))
+    assert np.isnan(az[0]) and np.degrees(az[1:]) == pytest.approx([0.0, 0.0, -90.0, -90.0])

@@ -35,6 +35,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="replace a results file of the same name that holds a different configuration "
                         "(other task version, weights or options); a rerun of the same configuration always replaces")
     p.add_argument("--no-frames", action="store_true", help="do not store per-frame estimates in the JSON")
+    p.add_argument("--locata-submission", metavar="DIR",
+                   help="LOCATA tasks: also write the estimates in the challenge's submission format, "
+                        "DIR/task<N>/recording<R>/<array>/source_1.txt (each required time stamp takes the latest "
+                        "estimate; NaN before the first), for doabench locata-eval or the challenge's own evaluation")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_threads_option(p)
     add_corpus_options(p)
@@ -46,6 +50,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.envs.registry import get_task_spec
     from doabench.envs.sources import kind_options, task_kind
     from doabench.errors import ConfigError
+    from doabench.files import write_text
     from doabench.results.writer import alias_files, check_overwrite, format_summary, weights_line, write_results
     from doabench.runner import RunSpec
     from doabench.runner.selection import parse_cells
@@ -70,6 +75,8 @@ def main(args: argparse.Namespace) -> int:
     # Refused before the work: a file of another configuration under this name (never overwritten silently).
     is_partial = bool(args.cells) or (args.episodes is not None and args.episodes < task.episodes)
     check_overwrite(spec.results_path(out), spec.configuration(), args.overwrite, partial=is_partial)
+    if args.locata_submission:
+        _check_submission_option(args, task.kind)
     partial = spec.journal_path(out)
     if spec.weights_hash or tracker.describe().get("trained") is False:  # which weights, before the work
         print(f"doabench run: {spec.tracker} on {spec.task}; {weights_line(tracker.describe())}", file=sys.stderr)
@@ -79,7 +86,10 @@ def main(args: argparse.Namespace) -> int:
         results = spec.execute(tracker, out, episodes=args.episodes, cells=parse_cells(args.cells),
                                device=args.device, progress=not args.quiet, keep_frames=not args.no_frames,
                                **corpus_kwargs(args))
+        submission = _submission(args, results)  # built (and refused) before anything is written
         json_path, csv_path = write_results(results, out, overwrite=args.overwrite)
+        for path, text in submission.items():
+            write_text(path, text)
         aliases = alias_files(results, out)
         for old in aliases:  # the same configuration written under an alias of the id
             old.unlink(missing_ok=True)
@@ -94,6 +104,8 @@ def main(args: argparse.Namespace) -> int:
         raise
     print(format_summary(results))
     print(f"wrote {json_path} and {csv_path}")
+    if submission:
+        print(f"wrote the LOCATA submission of {len(submission) // 2} recording(s) under {args.locata_submission}")
     if aliases:
         print(f"replaced {', '.join(str(p) for p in aliases)} (the same configuration under an alias of {spec.tracker})")
     return 0
@@ -109,3 +121,32 @@ def _kept(args: argparse.Namespace, partial: Path) -> str:
         return f"no episode had finished, nothing was kept; start it again with: {command_line(args)}"
     return (f"{n} finished episode{'s' if n > 1 else ''} kept in {partial}; resume with the same command: "
             f"{command_line(args)}")
+
+
+def _check_submission_option(args: argparse.Namespace, kind: str) -> None:
+    """``--locata-submission`` needs a LOCATA task, the per-frame estimates and a folder to write."""
+    from doabench.cli.common import check_output_folder
+    from doabench.errors import ConfigError
+
+    if kind != "locata":
+        raise ConfigError(f"--locata-submission applies to LOCATA tasks; task {args.task!r} is {kind}")
+    if args.no_frames:
+        raise ConfigError("--locata-submission needs the per-frame estimates: leave out --no-frames")
+    check_output_folder(args.locata_submission, option="--locata-submission")
+
+
+def _submission(args: argparse.Namespace, results: dict) -> dict[Path, str]:
+    """The ``--locata-submission`` files (path -> text); a track file there that doabench did not
+    write (another tool's, with more tracks) is refused rather than mixed with this run's."""
+    from doabench.errors import ConfigError
+    from doabench.locata.run_scores import submission_from_results
+
+    if not args.locata_submission:
+        return {}
+    files = submission_from_results(results, Path(args.locata_submission))
+    for folder in {p.parent for p in files}:
+        foreign = sorted(p.name for p in folder.glob("source_*.txt") if p.name != "source_1.txt") if folder.is_dir() else []
+        if foreign:
+            raise ConfigError(f"--locata-submission: {folder} already holds {', '.join(foreign)}; a one-track run "
+                              "would mix with those tracks (pick another folder)")
+    return files

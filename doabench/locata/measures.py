@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -240,8 +240,12 @@ class RecordingMeasures:
     n_stamps: int
 
     def to_json(self) -> dict[str, Any]:
+        """The measures as the results store them (``ospa_stamps``: per order, the stamps where
+        OSPA is defined, which weight the recording in a task's OSPA)."""
+        defined = {ospa_key(p): int(np.isfinite(self.stamps.ospa[i]).sum()) for i, p in enumerate(OSPA_ORDERS)}
         return {"sources": {name: s.to_json() for name, s in self.sources.items()}, "far": self.far,
-                "far_vap": self.far_vap, "mota": self.mota, "ospa_deg": self.ospa_deg, "stamps": self.n_stamps}
+                "far_vap": self.far_vap, "mota": self.mota, "ospa_deg": self.ospa_deg, "ospa_stamps": defined,
+                "stamps": self.n_stamps}
 
 
 def _latency(times: np.ndarray, first: int, missed: np.ndarray, mode: str) -> float:
@@ -320,21 +324,31 @@ PERIOD_MEASURES = ("az_error_deg", "az_error_ungated_deg", "inc_error_deg", "inc
 SOURCE_MEASURES = ("latency_s", "swap_rate", "frag_rate")
 
 
-def task_averages(recordings: Sequence[RecordingMeasures]) -> dict[str, Any]:
-    """The challenge's task averages: period measures pooled over every period of every source
-    and recording; latency, swap and fragmentation rates over (recording, source) values; FAR and
-    FAR during voice activity over recordings; OSPA over every stamp where it is defined; swaps
-    summed; MOTA over (recording, source) values. NaN values are left out of every mean."""
+def _as_json(recording: RecordingMeasures | Mapping[str, Any]) -> Mapping[str, Any]:
+    return recording.to_json() if isinstance(recording, RecordingMeasures) else recording
+
+
+def task_averages(recordings: Sequence[RecordingMeasures | Mapping[str, Any]]) -> dict[str, Any]:
+    """The challenge's task averages of some recordings (:class:`RecordingMeasures` or their
+    ``to_json()``): period measures pooled over every period of every source and recording;
+    latency, swap and fragmentation rates over (recording, source) values; FAR and FAR during
+    voice activity over recordings; OSPA over every stamp where it is defined; swaps summed; MOTA
+    over (recording, source) values. NaN (or None) values are left out of every mean."""
+    recs = [_as_json(r) for r in recordings]
+    sources = [s for r in recs for s in r["sources"].values()]
     out: dict[str, Any] = {}
     for name in PERIOD_MEASURES:
-        out[name] = _mean([v for r in recordings for s in r.sources.values() for v in getattr(s, name)])
+        out[name] = _mean([v for s in sources for v in s[name]])
     for name in SOURCE_MEASURES:
-        out[name] = _mean([getattr(s, name) for r in recordings for s in r.sources.values()])
-    out["far"] = _mean([r.far for r in recordings])
-    out["far_vap"] = _mean([r.far_vap for r in recordings])
-    out["mota"] = _mean([v for r in recordings for v in r.mota])
-    out["swaps"] = int(sum(s.swaps for r in recordings for s in r.sources.values()))
-    out["ospa_deg"] = {ospa_key(p): _mean(np.concatenate([r.stamps.ospa[i] for r in recordings]) if recordings
-                                          else [])
-                       for i, p in enumerate(OSPA_ORDERS)}
+        out[name] = _mean([s[name] for s in sources])
+    out["far"] = _mean([r["far"] for r in recs])
+    out["far_vap"] = _mean([r["far_vap"] for r in recs])
+    out["mota"] = _mean([v for r in recs for v in r["mota"]])
+    out["swaps"] = int(sum(s["swaps"] for s in sources))
+    out["ospa_deg"] = {}
+    for p in OSPA_ORDERS:
+        key = ospa_key(p)
+        weights = [(r["ospa_deg"][key], r["ospa_stamps"][key]) for r in recs if r["ospa_stamps"][key]]
+        total = sum(n for _, n in weights)
+        out["ospa_deg"][key] = float(sum(v * n for v, n in weights) / total) if total else math.nan
     return out

@@ -12,14 +12,18 @@ placeholder (the corpus copy decides).
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Mapping
+
+import numpy as np
 
 from doabench.envs.options import LocataOptions
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, NotFoundError
 from doabench.locata.layout import find_recordings
+from doabench.framing import FrameSpec
 from doabench.locata.reader import VAD_MODES, read_recording
+from doabench.locata.run_scores import episode_scores, summarise
 
 LICENSE = "LOCATA corpus, ODC-BY 1.0, DOI 10.5281/zenodo.3630471"
 
@@ -60,6 +64,20 @@ class LocataEpisodes:
         episode = read_recording(self.recordings[index], fs=self.fs, vad=self.vad, source=self.source)
         episode.metadata.update({"task": self.spec.id, "episode_index": index})
         return episode
+
+    extra_key = "locata"
+
+    def extra_scores(self, index: int, metadata: Mapping[str, Any], centres: np.ndarray, directions: np.ndarray,
+                     frame_spec: FrameSpec) -> dict[str, Any] | None:
+        """The challenge's measures and SRP-DNN's protocol of episode ``index``'s estimates on its
+        recording's required stamps (doabench.locata.run_scores); ``centres`` ``(F,)`` its frame
+        centres, ``directions`` ``(F, 3)`` the tracker's; None when its stamps cannot be scored."""
+        return episode_scores(self.recordings[index], float(metadata["start_s"]), centres, directions,
+                              frame_spec.window, frame_spec.fs)
+
+    def summarise_extra(self, scores: list[dict[str, Any]]) -> dict[str, Any]:
+        """The results' ``locata`` block from the episodes' :meth:`extra_scores`."""
+        return summarise(scores)
 
     def vad_sources(self) -> dict[int, str]:
         """Per recording number, the VAD that is (or will be) used: ``webrtcvad-array``, ``corpus``

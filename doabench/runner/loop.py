@@ -216,6 +216,10 @@ def _run_indices(env: DoaEnv, tracker: Tracker, spec: TaskSpec, indices: list[in
         scored = score(ep)
         record: dict[str, Any] = {"row": episode_row(index, ep), "errors": scored.errors,
                                   "az_errors": scored.az_errors, "vad": scored.vad, "planar": ep["planar"]}
+        extra = getattr(env.source, "extra_scores", None)  # a task kind's own measures (LOCATA's)
+        if extra is not None and (scores := extra(index, ep["metadata"], ep["times"], ep["estimates"],
+                                                  env.frame_spec)) is not None:
+            record["extra"] = scores
         if keep_frames:
             record["frames"] = {"times": ep["times"], "estimates": ep["estimates"], "truth": ep["truth"],
                                 "vad": ep["vad"]}

@@ -95,7 +95,7 @@ def build_results(spec: TaskSpec, tracker: Tracker, tracker_text: str, tracker_o
     cells = grid_cells(spec, rows)
     audio_s = float(sum(r["audio_s"] for r in rows))
     tracker_s = float(sum(r["tracker_s"] for r in rows))
-    return {
+    results = {
         "schema": RESULTS_SCHEMA,
         "task": {"id": spec.id, "version": spec.version, "kind": spec.kind, "gym_id": spec.gym_id,
                  "base_seed": spec.base_seed, "episodes_run": len(rows), "episodes_total": env.n_episodes,
@@ -119,3 +119,7 @@ def build_results(spec: TaskSpec, tracker: Tracker, tracker_text: str, tracker_o
         "episodes": rows,
         "frames": [r.get("frames") for r in records] if all("frames" in r for r in records) else None,
     }
+    extra = [r["extra"] for r in records if "extra" in r]
+    if extra and hasattr(env.source, "summarise_extra"):  # a task kind's own measures, under its key
+        results[env.source.extra_key] = env.source.summarise_extra(extra)
+    return results
