@@ -103,6 +103,10 @@ def main(args: argparse.Namespace) -> int:
                 break
         raise
     print(format_summary(results))
+    if results.get("locata"):
+        from doabench.locata.report import run_lines
+
+        print(run_lines(results["locata"]))
     print(f"wrote {json_path} and {csv_path}")
     if submission:
         print(f"wrote the LOCATA submission of {len(submission) // 2} recording(s) under {args.locata_submission}")

@@ -130,3 +130,18 @@ def truth_file_ours(path: Path) -> bool:
             return f.readline().rstrip("\n") == TRUTH_HEADER
     except (OSError, UnicodeDecodeError):
         return False
+
+
+def run_lines(block: dict[str, Any]) -> str:
+    """What ``doabench run`` prints of a LOCATA run's ``locata`` results block: the challenge's
+    headline measures per mode and SRP-DNN's protocol."""
+    lines = []
+    for mode in ("official", "corrected"):
+        avg = block[mode]
+        lines.append(f"LOCATA measures ({mode}): azimuth error {_cell(avg['az_error_ungated_deg'])} deg, "
+                     f"Pd {_cell(avg['pd'], 3)}, latency {_cell(avg['latency_s'])} s, FAR {_cell(avg['far'])} /s, "
+                     f"OSPA(p=1) {_cell(avg['ospa_deg']['1'])} deg")
+    srp = block["srp_dnn"]
+    lines.append(f"SRP-DNN protocol: accuracy {_cell(None if srp['accuracy'] is None else 100 * srp['accuracy'], 1)} %, "
+                 f"azimuth MAE {_cell(srp['az_mae_deg'])} deg, RMSE {_cell(srp['az_rmse_deg'])} deg")
+    return "\n".join(lines)

@@ -6,6 +6,10 @@ Spec parameters (``[locata]`` section of the task's TOML): ``task`` (1..6), ``ar
 ``auto``: corpus files when present, else WebRTC on the source signal). Run-time options: ``locata_root`` (else ``$DOABENCH_LOCATA``), ``split`` (overrides the
 spec's), ``vad``, ``source`` (a source name, for recordings with several).
 
+Beyond the frame metrics every task has, the runner asks the source for its own scores of each
+episode (:meth:`LocataEpisodes.extra_scores`: the challenge's measures on the required stamps,
+doabench.locata.run_scores) and stores their summary under the results' ``locata`` key.
+
 Registered through the ``doabench.task_kinds`` entry-point group (pyproject.toml), like every kind.
 One episode per recording found, in recording order; the spec's ``episodes`` is only a
 placeholder (the corpus copy decides).
