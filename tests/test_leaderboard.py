@@ -391,3 +391,34 @@ def test_a_results_folder_entry_that_is_no_regular_file_is_named_and_skipped(res
     err = capsys.readouterr().err
     for name in ("pipe.json", "folder.json"):
         assert any(name in line and "not a regular file" in line for line in err.splitlines()), err
+
+
+def test_texts_from_results_files_are_escaped_in_markdown_and_csv(results_dir: Path, tmp_path: Path, capsys) -> None:
+    """A tracker id holding HTML, a backtick that would close a code span, a Markdown link or a
+    spreadsheet formula is shown as text: no tag or link reaches the Markdown the site renders, and
+    no CSV cell starts a formula (a leading quote, as OWASP says), in `leaderboard` and `compare`."""
+    import csv as csv_module
+
+    hostile = {"html.json": "<img src=x onerror=alert(1)>", "tick.json": "x`<b>bold</b>`[a](javascript:alert(1))",
+               "formula.json": '=HYPERLINK("http://evil.example","click")', "at.json": "@SUM(1+1)*cmd|' /C calc'!A0"}
+    for name, tracker in hostile.items():
+        results = _results(tracker, 20.0)
+        results["environment"]["cpu"] = "<script>alert(1)</script>"
+        (results_dir / name).write_text(json.dumps(results))
+    out = tmp_path / "boards"
+    assert cli(["leaderboard", "--results", str(results_dir), "--out", str(out)]) == 0
+    compare_csv = tmp_path / "c.csv"
+    capsys.readouterr()
+    assert cli(["compare", str(results_dir / "html.json"), str(results_dir / "formula.json"),
+                str(results_dir / "tick.json"), "--csv", str(compare_csv)]) == 0
+    markdown = [p.read_text() for p in out.glob("*.md")] + [capsys.readouterr().out]
+    for text in markdown:
+        assert "<img" not in text and "<b>" not in text and "<script" not in text and "](javascript" not in text
+    page = (out / "sim-grid.md").read_text()
+    assert "&lt;img src=x onerror=alert(1)>" in page and "x&#96;&lt;b>bold&lt;/b>&#96;[a]&#40;javascript" in page
+    for path in [*out.glob("*.csv"), compare_csv]:
+        for row in csv_module.reader(path.read_text().splitlines()):
+            assert not any(cell[:1] in ("=", "+", "@", "\t", "\r") for cell in row), (path.name, row)
+            assert not any(cell[:1] == "-" and not cell.lstrip("-").replace(".", "", 1).isdigit() for cell in row)
+    cells = {cell for row in csv_module.reader((out / "sim-grid.csv").read_text().splitlines()) for cell in row}
+    assert "'" + hostile["formula.json"] in cells and "'" + hostile["at.json"] in cells

@@ -42,7 +42,7 @@ import numpy as np
 from doabench.errors import InputError
 from doabench.results.schema import load_results
 from doabench.results.identity import results_task_options
-from doabench.results.labels import run_label
+from doabench.results.labels import csv_cell, inert_texts, run_label
 from doabench.metrics import (LAG_MAX_S, LAG_STEP_S, THRESHOLDS_DEG, bootstrap_counts, follows, lag_grid, moves,
                               score_frames)
 
@@ -78,7 +78,7 @@ class Run:
 def load_run(path: str | Path) -> Run:
     """A results JSON written by ``doabench run``; InputError (one line) otherwise."""
     path = Path(path)
-    data = load_results(path)
+    data = inert_texts(load_results(path))  # its texts are shown, never interpreted (doabench.results.labels)
     if not data.get("episodes"):
         raise InputError(f"{path} has no per-episode rows to pair")
     return Run(path, data, run_label(data))
@@ -710,13 +710,14 @@ def csv_text(comparisons: Sequence[Comparison]) -> str:
     for c in comparisons:
         p = c.pairing
         for r in c.pooled + c.cells:
-            writer.writerow({"first_file": str(p.a.path), "other_file": str(p.b.path), "first": p.a.label,
-                             "other": p.b.label, "task": p.a.task.get("id"), "task_version": p.a.task.get("version"),
-                             "scope": r.scope, "t60": _g(r.t60), "snr": _g(r.snr), "n_episodes": r.n_episodes,
-                             "n_contributing": r.n_contributing,
-                             "metric": r.metric.key, "unit": r.metric.unit, "first_value": num(r.a),
-                             "other_value": num(r.b), "difference": num(r.diff), "ci95_low": num(r.low),
-                             "ci95_high": num(r.high), "verdict": r.verdict})
+            row = {"first_file": str(p.a.path), "other_file": str(p.b.path), "first": p.a.label,
+                   "other": p.b.label, "task": p.a.task.get("id"), "task_version": p.a.task.get("version"),
+                   "scope": r.scope, "t60": _g(r.t60), "snr": _g(r.snr), "n_episodes": r.n_episodes,
+                   "n_contributing": r.n_contributing,
+                   "metric": r.metric.key, "unit": r.metric.unit, "first_value": num(r.a),
+                   "other_value": num(r.b), "difference": num(r.diff), "ci95_low": num(r.low),
+                   "ci95_high": num(r.high), "verdict": r.verdict}
+            writer.writerow({k: csv_cell(v) for k, v in row.items()})
     return buf.getvalue()
 
 

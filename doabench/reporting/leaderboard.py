@@ -25,6 +25,7 @@ from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect,
                                       load_references, load_runs, recording_mean)
 from doabench.files import file_stem
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
+from doabench.results.labels import csv_cell
 from doabench.trackers.registry import TRACKERS
 
 PUBLISHED = "published"
@@ -479,7 +480,7 @@ def _csv_text(rows: list[dict[str, Any]], columns: Sequence[str]) -> str:
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n")
     writer.writeheader()
-    writer.writerows(rows)
+    writer.writerows({k: csv_cell(v) for k, v in row.items()} for row in rows)  # no formula cells
     return buf.getvalue()
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from doabench.errors import InputError
-from doabench.results.labels import run_label
+from doabench.results.labels import inert_text, inert_texts, run_label
 from doabench.results.schema import JsonBoundsError, read_json, results_problem
 
 SCHEMA_PREFIX = "doabench.results/"
@@ -166,7 +166,8 @@ def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
         if problem:
             warn(f"skipped {display_path(path)}: {problem}")
             continue
-        runs.append(RunFile(display_path(path), hashlib.sha256(data).hexdigest(), results))
+        # what the views show of a file (its name, its texts) is escaped (doabench.results.labels)
+        runs.append(RunFile(inert_text(display_path(path)), hashlib.sha256(data).hexdigest(), inert_texts(results)))
     return runs
 
 
