@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
 from doabench.errors import ConfigError, InputError
@@ -165,7 +166,7 @@ def score_stamps(truth_az: np.ndarray, truth_inc: np.ndarray, vad: np.ndarray, e
 
 
 # -- voice-active periods ----------------------------------------------------------------------
-def voice_periods(vad: np.ndarray, mode: str = "official") -> list[tuple[int, int]]:
+def voice_periods(vad: npt.ArrayLike, mode: str = "official") -> list[tuple[int, int]]:
     """``(first, last)`` stamp indices of the voice-active periods of ``vad`` ``(T,)``.
 
     ``corrected``: the maximal runs of activity. ``official``: as released, a start is a 0 -> 1

@@ -120,6 +120,7 @@ def build_results(spec: TaskSpec, tracker: Tracker, tracker_text: str, tracker_o
         "frames": [r.get("frames") for r in records] if all("frames" in r for r in records) else None,
     }
     extra = [r["extra"] for r in records if "extra" in r]
-    if extra and hasattr(env.source, "summarise_extra"):  # a task kind's own measures, under its key
-        results[env.source.extra_key] = env.source.summarise_extra(extra)
+    summarise = getattr(env.source, "summarise_extra", None)  # a task kind's own measures, under its key
+    if extra and summarise is not None:
+        results[str(getattr(env.source, "extra_key", "extra"))] = summarise(extra)
     return results
