@@ -239,6 +239,14 @@ def test_a_locata_run_reports_the_measures_and_writes_the_submission_locata_eval
             mine = ours["sources"]["loudspeaker1"][key]
             assert mine == pytest.approx(theirs["sources"]["loudspeaker1"][key], abs=1e-6)
         assert block[mode]["ospa_deg"]["1"] == pytest.approx(scored["tasks"]["1"]["benchmark2"]["ospa_deg"]["1"])
+    # the leaderboards show them beside the frame metrics
+    from doabench.reporting.leaderboard import build_leaderboards
+
+    pages = build_leaderboards(str(runs))
+    row = (f"| `srp-max:8x16` | {block['official']['az_error_ungated_deg']:.2f} | "
+           f"{block['corrected']['az_error_ungated_deg']:.2f} | {block['corrected']['pd']:.3f} |")
+    assert "### LOCATA challenge measures" in pages["locata-1.md"] and row in pages["locata-1.md"]
+    assert "## LOCATA challenge measures of the best runs" in pages["summary.md"]
 
 
 def test_locata_submission_is_refused_without_frames_or_off_locata(corpus, tmp_path, capsys):

@@ -403,6 +403,40 @@ def reference_section(board: TaskBoard, recordings: list[str]) -> list[str]:
     return lines + _table(header, rows)
 
 
+def _locata_rows(runs: Sequence[RunFile], labels: dict[str, str]) -> list[list[str]]:
+    """Per run with a ``locata`` results block: the challenge's headline measures (both modes) and
+    SRP-DNN's protocol."""
+    rows = []
+    for run in runs:
+        block = run.results.get("locata")
+        if not block:
+            continue
+        off, cor, srp = block.get("official") or {}, block.get("corrected") or {}, block.get("srp_dnn") or {}
+        accuracy = srp.get("accuracy")
+        rows.append([f"`{run.tracker_id}`", _num(off.get("az_error_ungated_deg")), _num(cor.get("az_error_ungated_deg")),
+                     _num(cor.get("pd"), 3), _num(cor.get("latency_s")), _num(off.get("far")),
+                     _num((off.get("ospa_deg") or {}).get("1")),
+                     "—" if accuracy is None else f"{100 * float(accuracy):.1f}%", _num(srp.get("az_mae_deg")),
+                     labels[run.path]])
+    return rows
+
+
+LOCATA_COLUMNS = ("tracker", "azimuth error, official [°]", "azimuth error, corrected [°]", "Pd", "latency [s]",
+                  "FAR [1/s]", "OSPA p=1 [°]", "SRP-DNN accuracy", "SRP-DNN azimuth MAE [°]", "run")
+
+
+def locata_section(board: TaskBoard, labels: dict[str, str]) -> list[str]:
+    """The LOCATA challenge's measures of the runs that carry them (docs/locata.md)."""
+    rows = _locata_rows(board.runs, labels)
+    if not rows:
+        return []
+    return ["", "### LOCATA challenge measures", "",
+            "On every required time stamp (each takes the latest estimate), from the results' `locata` block: the "
+            "azimuth error ungated (the challenge's headline) as released (official) and as the paper defines it "
+            "(corrected), Pd and track latency (corrected), FAR and OSPA (p = 1, cut-off 30°); SRP-DNN's protocol "
+            "(stamps within 30°, MAE over them). Definitions: docs/locata.md.", ""] + _table(LOCATA_COLUMNS, rows)
+
+
 def task_markdown(board: TaskBoard, command: str) -> str:
     """The Markdown page of one task."""
     labels = {run.path: f"R{i}" for i, run in enumerate(board.runs, start=1)}
@@ -447,6 +481,7 @@ def task_markdown(board: TaskBoard, command: str) -> str:
                 mean = sum(present) / len(present) if present else None
                 rec_rows.append([f"`{run.tracker_id}`"] + [_num(v) for v in vals] + [_num(mean), labels[run.path]])
             lines += _table(header, rec_rows)
+        lines += locata_section(board, labels)
     elif board.partial:
         lines += ["No complete run of this task yet; partial runs below.", ""]
     else:
@@ -592,6 +627,12 @@ def summary_markdown(boards: dict[str, TaskBoard], runs: Sequence[RunFile], refe
                      str(len({r.method for r in board.references})) if board.references else "0"])
     lines += _table(["task", "doabench runs", "best (RMSAE all)", "RMSAE all [95% CI]", "published methods"], rows)
     lines += _locata_overall(boards)
+    challenge = [(task_id, row) for task_id, board in boards.items()
+                 for row in _locata_rows(board.runs[:1], {r.path: "" for r in board.runs[:1]})]
+    if challenge:
+        lines += ["", "## LOCATA challenge measures of the best runs", ""]
+        lines += _table(("task",) + LOCATA_COLUMNS[:-1],
+                        [[f"`{task_id}`"] + row[:-1] for task_id, row in challenge])
     overall = [r for r in references if r.task_id == "all"]
     if overall:
         lines += ["", "## Published overall averages (not reproduced)", "",
