@@ -23,7 +23,8 @@ REFERENCE = ROOT / "leaderboards" / "locata-paper-table2.csv"
 
 def _results(tracker: str, rmsae: float, task: str = "sim-grid", episodes_run: int = 2, total: int = 2,
              recordings: bool = False) -> dict:
-    """A minimal results dict in the runner's schema, two episodes, grid cells for sim-grid."""
+    """A minimal results dict in the runner's schema, two episodes, grid cells for sim-grid. Only the
+    first episode has scored frames, so the summary's pooled RMSAEs are its own, as the rows say."""
     rng = np.random.default_rng(abs(hash(tracker)) % 1000)
     times = (np.arange(5) * 3072 + 2048) / 16000
     truth = np.tile([[1.0, 0.0, 0.0]], (5, 1))
@@ -31,7 +32,8 @@ def _results(tracker: str, rmsae: float, task: str = "sim-grid", episodes_run: i
                "truth": truth.tolist(), "vad": [1, 1, 0, 1, 1]} for _ in range(episodes_run)]
     rows = [{"episode": i, "task": "sim-t60-0.3-snr-30" if i == 0 else "sim-t60-0.9-snr-5", "seed": 100 + i,
              "t60": 0.3 if i == 0 else 0.9, "snr": 30.0 if i == 0 else 5.0,
-             "recording": i + 1 if recordings else None, "rmsae_all": rmsae + i, "rmsae_nonsilent": rmsae - 1 + i}
+             "recording": i + 1 if recordings else None, "rmsae_all": rmsae + i, "rmsae_nonsilent": rmsae - 1 + i,
+             "n_frames": 5 if i == 0 else 0, "n_nonsilent": 4 if i == 0 else 0}
             for i in range(episodes_run)]
     pooled = {"rmsae_all": rmsae, "rmsae_nonsilent": rmsae - 1, "mae": rmsae / 2, "median": rmsae / 3,
               "p90": rmsae * 1.5, "within_5": 0.1, "within_10": 0.5, "within_20": 0.8, "within_30": 0.9,
@@ -422,3 +424,27 @@ def test_texts_from_results_files_are_escaped_in_markdown_and_csv(results_dir: P
             assert not any(cell[:1] == "-" and not cell.lstrip("-").replace(".", "", 1).isdigit() for cell in row)
     cells = {cell for row in csv_module.reader((out / "sim-grid.csv").read_text().splitlines()) for cell in row}
     assert "'" + hostile["formula.json"] in cells and "'" + hostile["at.json"] in cells
+
+
+@pytest.mark.parametrize("claim", [0.5, -5.0])
+def test_a_summary_that_disagrees_with_its_episodes_is_refused_and_named(tmp_path: Path, capsys, claim) -> None:
+    """A results file edited to claim a better RMSAE than its episode rows give is not published:
+    the leaderboard names it and leaves it out, ``compare`` refuses it in one line."""
+    folder = tmp_path / "results"
+    folder.mkdir()
+    for name in ("sim-fan__cross3d_16x32.json", "sim-fan__srp-kalman_32x64.json"):
+        (folder / name).write_bytes((ROOT / "results" / name).read_bytes())
+    edited = json.loads((folder / "sim-fan__cross3d_16x32.json").read_text())
+    edited["summary"]["rmsae_all"] = claim
+    (folder / "sim-fan__cross3d_16x32.json").write_text(json.dumps(edited))
+    capsys.readouterr()
+    assert cli(["leaderboard", "--results", str(folder), "--out", str(tmp_path / "boards")]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "sim-fan__cross3d_16x32.json" in line]
+    assert len(lines) == 1 and "skipped" in lines[0] and f"summary.rmsae_all is {claim:.4g}" in lines[0], err
+    page = (tmp_path / "boards" / "sim-fan.md").read_text()
+    assert "cross3d" not in page.split("## ")[0] and f"{claim:.2f} [" not in page and "srp-kalman:32x64" in page
+    assert cli(["compare", str(folder / "sim-fan__cross3d_16x32.json"),
+                str(folder / "sim-fan__srp-kalman_32x64.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "episode rows pool to" in err

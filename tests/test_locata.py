@@ -316,6 +316,7 @@ def test_locata_headline_is_the_mean_of_recordings(tmp_path):
     d.mkdir()
     a = _results("srp-max", 10.0, "locata-3", 2, 2, True)  # pooled 10, recordings 30 and 2 -> mean 16
     a["episodes"][0]["rmsae_all"], a["episodes"][1]["rmsae_all"] = 30.0, 2.0
+    a["episodes"][0]["n_frames"], a["episodes"][1]["n_frames"] = 3, 25  # pooled over frames: still 10
     b = _results("srp-kalman", 12.0, "locata-3", 2, 2, True)  # pooled 12, recordings 12 and 13 -> mean 12.5
     a2 = _results("srp-max", 10.0, "locata-1", 2, 2, True)
     for name, r in (("locata-3__srp-max", a), ("locata-3__srp-kalman", b), ("locata-1__srp-max", a2),

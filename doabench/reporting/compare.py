@@ -40,7 +40,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from doabench.errors import InputError
-from doabench.results.schema import load_results
+from doabench.results.schema import load_results, summary_problem
 from doabench.results.identity import results_task_options
 from doabench.results.labels import csv_cell, inert_texts, run_label
 from doabench.metrics import (LAG_MAX_S, LAG_STEP_S, THRESHOLDS_DEG, bootstrap_counts, follows, lag_grid, moves,
@@ -81,6 +81,9 @@ def load_run(path: str | Path) -> Run:
     data = inert_texts(load_results(path))  # its texts are shown, never interpreted (doabench.results.labels)
     if not data.get("episodes"):
         raise InputError(f"{path} has no per-episode rows to pair")
+    problem = summary_problem(data)
+    if problem:
+        raise InputError(f"{path}: {problem}")
     return Run(path, data, run_label(data))
 
 

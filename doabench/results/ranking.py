@@ -27,7 +27,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 from doabench.errors import InputError
 from doabench.results.labels import inert_text, inert_texts, run_label
-from doabench.results.schema import JsonBoundsError, read_json, results_problem
+from doabench.results.schema import JsonBoundsError, read_json, results_problem, summary_problem
 
 SCHEMA_PREFIX = "doabench.results/"
 SUPPORTED_SCHEMAS = ("doabench.results/1",)
@@ -162,7 +162,7 @@ def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
             raise InputError(f"{path} cannot be read ({exc.strerror or exc})") from None
         except InputError as exc:
             raise InputError(f"{exc}; fix or remove it") from None
-        problem = results_problem(results)
+        problem = results_problem(results) or summary_problem(results)
         if problem:
             warn(f"skipped {display_path(path)}: {problem}")
             continue

@@ -139,6 +139,45 @@ def results_problem(data: Any, sections: Sequence[str] = LEADERBOARD_SECTIONS) -
     return None
 
 
+#: how far a summary's pooled RMSAE may lie from the one its episode rows give (relative: rounding only)
+SUMMARY_TOLERANCE = 1e-6
+_POOLED = (("rmsae_all", "n_frames"), ("rmsae_nonsilent", "n_nonsilent"))
+
+
+def summary_problem(results: Any) -> str | None:
+    """Why the pooled RMSAEs of a results file's summary are not what its episode rows give, or None.
+    A pooled RMS over frames is exact from the rows: ``sqrt(sum_i n_i rms_i^2 / sum_i n_i)`` over
+    episodes ``i`` (``n_frames`` for ``rmsae_all``, ``n_nonsilent`` for ``rmsae_nonsilent``), so an
+    edited summary (a better number than the episodes give) is found."""
+    summary, rows = results.get("summary"), results.get("episodes")
+    if not isinstance(summary, dict):
+        return None
+    for metric, count in _POOLED:
+        claimed = summary.get(metric)
+        if claimed is None:
+            continue
+        if not _is_type(claimed, "number"):
+            return f"summary.{metric} is {json.dumps(claimed)}, not a number"
+        if not isinstance(rows, list) or not rows:
+            return f"summary.{metric} is {claimed:.4g} but the file has no episode rows it comes from"
+        values, counts = [], []
+        for row in rows:
+            value, n = row.get(metric) if isinstance(row, dict) else None, row.get(count) if isinstance(row, dict) else None
+            if not (_is_type(n, "integer") and n >= 0) or not (value is None or _is_type(value, "number")):
+                return f"episode rows hold no usable {metric} and {count} to check summary.{metric} against"
+            values.append(math.nan if value is None else float(value))
+            counts.append(float(n))
+        rms, n = np.asarray(values), np.asarray(counts)
+        total = float(n.sum())
+        pooled = math.sqrt(float(np.where(n > 0, np.nan_to_num(rms) ** 2 * n, 0.0).sum()) / total) if total else math.nan
+        if math.isnan(pooled) and math.isnan(claimed):
+            continue
+        if not abs(pooled - claimed) <= SUMMARY_TOLERANCE * max(1.0, abs(pooled)):
+            return (f"summary.{metric} is {claimed:.4g} but its {len(rows)} episode rows pool to {pooled:.4g}; "
+                    "the summary was not computed from them")
+    return None
+
+
 def _section_problem(section: str, value: Any, schema: dict[str, Any]) -> str | None:
     """What a section lacks or holds of the wrong type, by the schema's ``required`` and ``type``."""
     if not isinstance(value, dict):
