@@ -228,6 +228,26 @@ def bootstrap_ci(per_frame: Sequence[tuple[np.ndarray, np.ndarray]], statistic: 
     return bootstrap_ci_from_sums(sq, n, n_boot, level, seed)
 
 
+#: the fewest episodes every stratum must hold for a bootstrap to draw within strata (:func:`bootstrap_strata`)
+MIN_STRATUM = 5
+
+
+def bootstrap_strata(strata: Sequence[np.ndarray], n_episodes: int,
+                     min_size: int = MIN_STRATUM) -> tuple[list[np.ndarray], bool]:
+    """The strata a bootstrap draws within, and whether it is stratified: ``strata`` when every
+    one holds at least ``min_size`` episodes, else one stratum of all ``n_episodes`` (the
+    episodes are drawn across the whole task).
+
+    A stratum of one episode gives it in every resample, and one of two gives three values: a
+    bootstrap stratified over such strata has an interval of (nearly) no width, which claims a
+    certainty the data do not have. Drawn across the task, the interval holds the spread between
+    the episodes of different strata too, which is wider than the stratified one: the honest side."""
+    strata = [np.asarray(s, np.int64) for s in strata]
+    if len(strata) > 1 and all(len(s) >= min_size for s in strata):
+        return strata, True
+    return [np.arange(n_episodes)], False
+
+
 def bootstrap_counts(strata: Sequence[np.ndarray], n_episodes: int, n_resamples: int = 1000,
                      seed: int = 0) -> np.ndarray:
     """``(n_resamples, n_episodes)``: how often each episode is drawn in each resample, drawing
@@ -235,7 +255,8 @@ def bootstrap_counts(strata: Sequence[np.ndarray], n_episodes: int, n_resamples:
 
     The one bootstrap of doabench: a results file's intervals draw from one stratum (every
     episode), ``doabench compare`` draws within each grid cell (the stratified bootstrap of
-    ``rliable``, Agarwal et al., NeurIPS 2021). A statistic of resample ``r`` is then computed
+    ``rliable``, Agarwal et al., NeurIPS 2021) where every cell holds at least
+    :data:`MIN_STRATUM` episodes, else across the task (:func:`bootstrap_strata`). A statistic of resample ``r`` is then computed
     from ``counts[r] @ per_episode_sums``."""
     rng = np.random.default_rng(seed)
     counts = np.zeros((n_resamples, n_episodes))

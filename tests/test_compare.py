@@ -261,3 +261,45 @@ def test_the_episodes_a_verdict_needs_can_be_set_and_cells_count_too_few(tmp_pat
     assert all(r.verdict == cmp.TOO_FEW for r in grid.cells) and grid.pooled[0].verdict == cmp.WORSE
     assert cmp.cell_summary(grid) == ("better in 0, worse in 0, no significant difference in 0, too few episodes in 2 "
                                       "of 2 cells")
+
+
+@pytest.mark.parametrize("per_cell", [1, 2])
+def test_cells_of_one_or_two_episodes_are_not_resampled_within_themselves(tmp_path, capsys, per_cell):
+    """Twelve cells of one (or two) paired episodes each: drawn within each cell, every resample
+    repeats the same episodes and the interval has (nearly) no width. The pooled lines draw the
+    episodes across the task instead, so the interval holds the spread between episodes, and the
+    report, the CSV and the forest plot say so."""
+    rng = np.random.default_rng(3)
+    base = list(rng.uniform(5.0, 30.0, 12 * per_cell))
+    gain = list(rng.normal(-3.0, 6.0, 12 * per_cell))  # differences that vary from episode to episode
+    a = _write(tmp_path, "a.json", _results("mine", [max(e + g, 0.5) for e, g in zip(base, gain)], cells=12))
+    b = _write(tmp_path, "b.json", _results("other", base, cells=12))
+    c = cmp.compare(cmp.load_run(a), cmp.load_run(b))
+    headline = c.pooled[0]
+    assert headline.metric.key == "rmsae_all" and headline.bootstrap == cmp.ACROSS
+    # the interval of the unstratified paired bootstrap over all episodes, not a stratified one
+    everything = np.arange(12 * per_cell)
+    across = cmp.compare_scope(c.pairing, headline.metric, everything, [everything], "pooled", cmp.N_RESAMPLES, 0)
+    assert (headline.low, headline.high) == pytest.approx((across.low, across.high))
+    assert headline.high - headline.low > 1.0  # a real spread, not a point
+    assert all(r.verdict == cmp.TOO_FEW for r in c.cells)
+    assert any("draw episodes across the whole task" in n for n in c.notes)
+    assert main(["compare", str(a), str(b), "--csv", str(tmp_path / "c.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "draw episodes across the whole task" in out
+    rows = list(csv.DictReader((tmp_path / "c.csv").open()))
+    assert rows[0]["scope"] == "pooled" and rows[0]["bootstrap"] == cmp.ACROSS
+    import matplotlib.pyplot as plt
+
+    fig = cmp.forest_figure([c])
+    assert "drawn across cells" in fig._suptitle.get_text()
+    plt.close(fig)
+
+
+def test_cells_of_five_episodes_or_more_are_resampled_within_themselves(tmp_path):
+    """Two cells of five paired episodes: the pooled lines draw within each cell (stratified)."""
+    a = _write(tmp_path, "a.json", _results("mine", [e + 2.0 for e in BASE + BASE[:2]]))
+    b = _write(tmp_path, "b.json", _results("other", BASE + BASE[:2]))
+    c = cmp.compare(cmp.load_run(a), cmp.load_run(b))
+    assert c.pooled[0].bootstrap == cmp.STRATIFIED and not any("across the whole task" in n for n in c.notes)
+    assert {r.bootstrap for r in c.cells} == {cmp.ACROSS}

@@ -13,7 +13,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "task version and seeds): the difference of every summary metric (RMSAE all frames and "
                     "voice-active, MAE, median, p90, shares within 5-30°, azimuth MAE, tracking lag, RMSAE by "
                     "angular speed, where the files carry them), pooled and per grid cell, with a 95% interval "
-                    "from a paired bootstrap over episodes (stratified by cell) and a verdict: better, worse or "
+                    "from a paired bootstrap over episodes (stratified by cell where every cell holds at least 5 "
+                    "paired episodes, else drawn across the task) and a verdict: better, worse or "
                     "no significant difference; 'too few episodes' instead where fewer than --min-episodes paired "
                     "episodes contribute to a line (column n). Markdown on stdout.")
     p.add_argument("results", nargs="+", metavar="RESULTS.json",

@@ -13,6 +13,13 @@ episodes as the cell holds, with replacement, and the same episodes for both run
 difference whose interval excludes 0 is called better or worse; otherwise "no significant
 difference". Per cell, the bootstrap draws from that cell only.
 
+Strata of one or two episodes: a cell of one paired episode gives that episode in every resample,
+so a bootstrap stratified by such cells has an interval of no width (twelve cells of one episode
+each: ``-12.20 [-12.20, -12.20]``). The pooled lines are therefore stratified only when every cell
+holds at least :data:`doabench.metrics.MIN_STRATUM` (5) paired episodes; otherwise the episodes are
+drawn across the whole task (:func:`doabench.metrics.bootstrap_strata`), which keeps the spread
+between cells in the interval, and a note and the CSV's ``bootstrap`` column say so.
+
 A verdict needs enough episodes behind it: every line says how many paired episodes contribute
 to it (``n``: those with frames of it in both runs, e.g. frames in a speed band, or a moving
 talker for the lag), and a line with fewer than ``MIN_EPISODES`` (5) gets "too few episodes"
@@ -43,8 +50,8 @@ from doabench.errors import InputError
 from doabench.results.schema import load_results, summary_problem
 from doabench.results.identity import results_task_options
 from doabench.results.labels import csv_cell, inert_texts, run_label
-from doabench.metrics import (LAG_MAX_S, LAG_STEP_S, THRESHOLDS_DEG, bootstrap_counts, follows, lag_grid, moves,
-                              score_frames)
+from doabench.metrics import (LAG_MAX_S, LAG_STEP_S, MIN_STRATUM, THRESHOLDS_DEG, bootstrap_counts, bootstrap_strata,
+                              follows, lag_grid, moves, score_frames)
 
 N_RESAMPLES = 2000
 LEVEL = 0.95
@@ -55,6 +62,8 @@ BETTER, WORSE, TIE = "better", "worse", "no significant difference"
 #: what a line backed by fewer than ``MIN_EPISODES`` contributing episodes says instead of a verdict
 TOO_FEW = "too few episodes"
 MIN_EPISODES = 5
+#: the CSV's ``bootstrap`` column: drawn within each grid cell, or across the episodes of the line's scope
+STRATIFIED, ACROSS = "within cells", "across episodes"
 
 
 # -- loading and pairing ------------------------------------------------------------------------------------
@@ -434,6 +443,8 @@ class Row:
     #: paired episodes that contribute to the line in both runs (frames of it), and how many a verdict needs
     n_contributing: int
     min_episodes: int = MIN_EPISODES
+    #: how the bootstrap drew: within each grid cell (``STRATIFIED``) or across the scope's episodes (``ACROSS``)
+    bootstrap: str = ACROSS
 
     @property
     def enough(self) -> bool:
@@ -474,6 +485,7 @@ def compare_scope(p: Pairing, metric: Metric, positions: np.ndarray, strata: Seq
                  if _voiced_errors(f)[0].size else float("nan") for f in (fa, fb)]
     else:
         point = [float(_values(metric, s, f, ones)[0]) for s, f in ((sums_a, fa), (sums_b, fb))]
+    strata, stratified = bootstrap_strata(strata, len(positions))
     counts = bootstrap_counts(strata, len(positions), n_resamples, seed)
     diffs = _values(metric, sums_a, fa, counts) - _values(metric, sums_b, fb, counts)
     diffs = diffs[np.isfinite(diffs)]
@@ -484,7 +496,8 @@ def compare_scope(p: Pairing, metric: Metric, positions: np.ndarray, strata: Seq
     return Row(scope, first.get("t60") if cell else None, first.get("snr") if cell else None, len(positions), metric,
                metric.scale * point[0], metric.scale * point[1], metric.scale * (point[0] - point[1]),
                metric.scale * float(low), metric.scale * float(high),
-               n_contributing=int(np.sum((sums_a[:, -1] > 0) & (sums_b[:, -1] > 0))), min_episodes=min_episodes)
+               n_contributing=int(np.sum((sums_a[:, -1] > 0) & (sums_b[:, -1] > 0))), min_episodes=min_episodes,
+               bootstrap=STRATIFIED if stratified else ACROSS)
 
 
 @dataclass
@@ -521,6 +534,10 @@ def compare(a: Run, b: Run, silence: bool = False, holds: Sequence[int] = (), n_
     everything = np.arange(p.n)
     strata = list(p.cells.values()) or [everything]
     pooled = [compare_scope(p, m, everything, strata, "pooled", n_resamples, seed, min_episodes) for m in metrics]
+    if p.cells and not bootstrap_strata(strata, p.n)[1]:
+        notes.append(f"the pooled intervals draw episodes across the whole task, not within each cell: a cell holds "
+                     f"fewer than {MIN_STRATUM} paired episodes ({min(len(v) for v in p.cells.values())}), and a "
+                     "draw within it would repeat the same episodes in every resample")
     cells = []
     for cell, positions in sorted(p.cells.items(), key=lambda kv: (_f(p.rows_a[kv[1][0]].get("t60")),
                                                                    _f(p.rows_a[kv[1][0]].get("snr")), kv[0])):
@@ -630,7 +647,8 @@ def markdown(comparisons: Sequence[Comparison], cell_metrics: Sequence[str] = DE
     if comparisons:
         lines += [f"Paired over the episodes both runs ran (same task version and seeds). Difference = first run − "
                   f"other run; brackets: 95 % interval of a paired bootstrap over episodes ({n_resamples} resamples, "
-                  "stratified by grid cell). Verdict for the first run: *better* or *worse* when the interval "
+                  f"stratified by grid cell where every cell holds at least {MIN_STRATUM} paired episodes, else "
+                  "drawn across the task). Verdict for the first run: *better* or *worse* when the interval "
                   "excludes 0 (lower is better, except the shares within N°), else *no significant difference*; "
                   f"*{TOO_FEW}* (no verdict, no interval) where fewer than {_min_episodes(comparisons)} paired "
                   "episodes contribute to the line. n: the paired episodes that contribute (frames of that speed "
@@ -701,7 +719,7 @@ def _min_episodes(comparisons: Sequence[Comparison]) -> int:
 
 CSV_COLUMNS = ("first_file", "other_file", "first", "other", "task", "task_version", "scope", "t60", "snr",
                "n_episodes", "n_contributing", "metric", "unit", "first_value", "other_value", "difference",
-               "ci95_low", "ci95_high", "verdict")
+               "ci95_low", "ci95_high", "verdict", "bootstrap")
 
 
 def csv_text(comparisons: Sequence[Comparison]) -> str:
@@ -719,7 +737,7 @@ def csv_text(comparisons: Sequence[Comparison]) -> str:
                    "n_contributing": r.n_contributing,
                    "metric": r.metric.key, "unit": r.metric.unit, "first_value": num(r.a),
                    "other_value": num(r.b), "difference": num(r.diff), "ci95_low": num(r.low),
-                   "ci95_high": num(r.high), "verdict": r.verdict}
+                   "ci95_high": num(r.high), "verdict": r.verdict, "bootstrap": r.bootstrap}
             writer.writerow({k: csv_cell(v) for k, v in row.items()})
     return buf.getvalue()
 
@@ -783,8 +801,11 @@ def forest_figure(comparisons: Sequence[Comparison], metrics: Sequence[str] = ("
         axes[0][-1].legend(handles, [f"vs {c.pairing.b.label}" for c in comparisons], fontsize="small",
                            loc="upper left", bbox_to_anchor=(1.02, 1.0))
     too_few = any(not r.enough for c in comparisons for r in c.pooled + c.cells if r.metric.key in metrics)
+    across = any(c.cells and r.bootstrap == ACROSS for c in comparisons for r in c.pooled)
     fig.suptitle(f"{first.label} minus {'each other run' if k > 1 else comparisons[0].pairing.b.label} on "
-                 f"{first.task.get('id')} (95% paired bootstrap; green better, red worse, grey no significant "
+                 f"{first.task.get('id')} (95% paired bootstrap"
+                 f"{f', pooled row drawn across cells: a cell holds fewer than {MIN_STRATUM}' if across else ''}; "
+                 f"green better, red worse, grey no significant "
                  f"difference{'; hollow: ' + TOO_FEW if too_few else ''})", fontsize="medium")
     fig.tight_layout()
     return fig
