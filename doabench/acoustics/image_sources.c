@@ -11,7 +11,7 @@
  *
  * Why a compiled loop: the torch path needs about fifteen elementwise passes plus scatters per
  * (point, image, microphone) element; this loop keeps everything in registers and writes 32
- * contiguous samples (two 16-float vectors) per element (numbers in docs/performance.md).
+ * contiguous samples (vectors of the target's width) per element (numbers in docs/performance.md).
  *
  * Floating point: built with -ffp-contract=off, so every product and sum is one IEEE float32
  * operation whatever the instruction set; samples accumulate in image order. Results are bitwise
@@ -23,21 +23,31 @@
 
 #define DB_HALF 16  /* SINC_HALF: the window spans +-16 samples */
 #define DB_OVER 128 /* KERNEL_PHASES (rir.py): table phases per sample (nearest phase) */
-#define DB_TAPS 32  /* samples one image touches: 2 * DB_HALF, two 16-float vectors */
+#define DB_TAPS 32  /* samples one image touches: 2 * DB_HALF */
 #define DB_BLOCK 64 /* images per block of the vectorised distance work */
 
-/* 16 floats; GCC/clang vector extensions compile to the widest vectors of the target (one
- * AVX-512 register, two AVX or four SSE/NEON registers). Unaligned loads and stores go through
- * memcpy, which compiles to single unaligned vector moves. */
-typedef float db_v16 __attribute__((vector_size(64)));
+/* The tap vectors have the target's native width: 16 floats with AVX-512, 8 with AVX/AVX2, 4
+ * with SSE or NEON. A vector wider than the target's registers (16 floats on AVX2) makes GCC
+ * build the scalar-times-vector broadcast piecewise through the stack, 16 scalar stores and
+ * reloads per image: the kernel then ran 6x slower on AVX2 than with AVX-512
+ * (docs/performance.md). Unaligned loads and stores go through memcpy, which compiles to single
+ * unaligned vector moves. Every sample gets the same float32 product and sum at any width. */
+#if defined(__AVX512F__)
+#define DB_LANES 16
+#elif defined(__AVX__)
+#define DB_LANES 8
+#else
+#define DB_LANES 4
+#endif
+typedef float db_vec __attribute__((vector_size(DB_LANES * sizeof(float))));
 
-static inline db_v16 db_load(const float *p) {
-    db_v16 v;
+static inline db_vec db_load(const float *p) {
+    db_vec v;
     memcpy(&v, p, sizeof v);
     return v;
 }
 
-static inline void db_store(float *p, db_v16 v) { memcpy(p, &v, sizeof v); }
+static inline void db_store(float *p, db_vec v) { memcpy(p, &v, sizeof v); }
 
 int doabench_image_kernel_version(void) { return 5; }
 
@@ -105,8 +115,8 @@ int doabench_render_images(int64_t P, int64_t M, int64_t I, const float *restric
                     const float a = w[k];
                     if (base >= 0 && base + DB_TAPS <= n_out) {
                         float *r = row + base;
-                        db_store(r, db_load(r) + a * db_load(t));
-                        db_store(r + 16, db_load(r + 16) + a * db_load(t + 16));
+                        for (int j = 0; j < DB_TAPS; j += DB_LANES)
+                            db_store(r + j, db_load(r + j) + a * db_load(t + j));
                     } else {
                         for (int n = 0; n < DB_TAPS; n++) {
                             const int64_t s = base + n;
