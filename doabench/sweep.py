@@ -99,11 +99,13 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     """Run every (tracker, task) of the lists into ``out`` and build the leaderboard of ``out``
     (into ``leaderboard``, default ``out/leaderboard``).
 
-    A results file of another configuration in the way (another task version, other weights) is
-    replaced only with ``overwrite``; without it that run fails at once, before any work."""
+    A results file in the way that holds another configuration (another task version, other
+    weights) or episodes the run does not take (4 of them, then ``episodes=2``) is replaced only
+    with ``overwrite`` (``--replace``); without it that run fails at once, before any work."""
     from doabench.envs.registry import get_task_spec, task_reference
     from doabench.ray_support import check_engine, require_ray
     from doabench.results.writer import check_overwrite
+    from doabench.runner.selection import select_episodes
     from doabench.trackers.registry import make_tracker
 
     check_engine(engine)
@@ -136,8 +138,10 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
             run.status, run.json_path = "skipped", path
             log(f"{run.tracker} on {run.task}: already done ({path.name})")
             continue
-        try:  # refuse to replace another configuration's file now, not after the run
-            check_overwrite(spec.results_path(out), spec.configuration(), overwrite)
+        try:  # refuse to replace another configuration's file, or drop its episodes, now, not after the run
+            task = get_task_spec(spec.task_ref)
+            check_overwrite(spec.results_path(out), spec.configuration(), overwrite,
+                            episodes=lambda total, task=task: select_episodes(task, total, episodes)[0])
         except DoabenchError as exc:
             run.status, run.error = "failed", str(exc)
             _log_run(run, log)

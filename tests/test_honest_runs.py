@@ -217,6 +217,40 @@ def test_run_sweep_and_leaderboard_default_to_the_ignored_runs_folder():
             assert ignored.stdout.strip() == probe
 
 
+def test_a_rerun_that_would_drop_episodes_is_refused_unless_replace(tmp_path, capsys):
+    """3 episodes, then a run of 2: refused in one line naming the file and both counts, the file
+    untouched, by `run` and `sweep` alike; --replace replaces it; a rerun of the same episodes is
+    idempotent, and a run of more episodes extends the file."""
+    from doabench.cli.main import main
+
+    out = tmp_path / "r"
+    quick = ["--task", "sim-demo", "--tracker", "srp-max:4x8", "--out", str(out), "--quiet", "--no-frames"]
+    json_path = out / "sim-demo__srp-max_4x8.json"
+    assert main(["run", *quick, "--episodes", "3"]) == 0
+    before = json_path.read_bytes()
+    capsys.readouterr()
+    assert main(["run", *quick, "--episodes", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and str(json_path) in err, err
+    assert "with 3 episodes and this run takes 2, without 1 of them: pass --replace" in err
+    assert json_path.read_bytes() == before and not list(out.glob(".*"))  # untouched, no journal or lock
+    sweep = ["sweep", "--trackers", "srp-max:4x8", "--tasks", "sim-demo", "--quiet", "--no-frames",
+             "--out", str(out), "--leaderboard", str(tmp_path / "board")]
+    assert main([*sweep, "--episodes", "1"]) == 1
+    assert "with 3 episodes and this run takes 1, without 2 of them" in capsys.readouterr().out
+    assert json_path.read_bytes() == before
+    # the same episodes again: the same scores
+    assert main(["run", *quick, "--episodes", "3"]) == 0
+    again = json.loads(json_path.read_text())
+    assert again["summary"]["rmsae_all"] == json.loads(before)["summary"]["rmsae_all"]
+    assert main(["run", *quick, "--episodes", "2", "--replace"]) == 0  # on purpose
+    assert json.loads(json_path.read_text())["task"]["episodes_run"] == 2
+    assert main([*sweep, "--episodes", "3"]) == 0  # more episodes: extends the file
+    assert json.loads(json_path.read_text())["task"]["episodes_run"] == 3
+    assert main([*sweep, "--episodes", "1", "--replace"]) == 0
+    assert json.loads(json_path.read_text())["task"]["episodes_run"] == 1
+
+
 def test_a_partial_rerun_never_replaces_a_complete_run(tmp_path, capsys):
     from doabench.cli.main import main
 
@@ -226,6 +260,6 @@ def test_a_partial_rerun_never_replaces_a_complete_run(tmp_path, capsys):
     json_path = out / "sim-demo__srp-max_4x8.json"
     before = json_path.read_bytes()
     assert main(["run", *quick, "--episodes", "1"]) == 2
-    assert "holds a complete run of this configuration and this run is partial" in capsys.readouterr().err
+    assert "holds a complete run of this configuration with 4 episodes and this run takes 1" in capsys.readouterr().err
     assert json_path.read_bytes() == before
     assert main(["run", *quick, "--episodes", "1", "--overwrite"]) == 0  # on purpose

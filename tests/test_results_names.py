@@ -157,3 +157,64 @@ def test_a_plug_in_trackers_reproduce_line_uses_the_id_that_was_typed() -> None:
     assert "--tracker my_trackers.fixed:FixedFront " in reproduce_command(data)
     data["tracker"] = {**data["tracker"], "id": "srp-max:16x32", "name": "srp-max", "given_id": "srp-max"}
     assert "--tracker srp-max:16x32 " in reproduce_command(data)
+
+
+PLUG_IN = '''
+import numpy as np
+import doabench
+
+
+class EmaTracker(doabench.Tracker):
+    """Holds an average of the SRP peak; its spec is the map resolution, not in its id."""
+    features = ("srp",)
+    causal = True
+
+    def __init__(self, spec=None, alpha=0.5, **options):
+        super().__init__(spec, **options)
+        self.alpha = float(alpha)
+
+    @property
+    def resolution(self):
+        a, b = (self.spec or "16x32").split("x")
+        return (int(a), int(b))
+
+    def reset(self, array, **context):
+        from doabench.geometry import grid_unit_vectors
+        self.grid = grid_unit_vectors(*self.resolution, planar=array.planar).reshape(-1, 3)
+        self.last = np.array([1.0, 0.0, 0.0])
+
+    def step(self, observation):
+        srp = observation["srp"].ravel()
+        if observation["vad"] and srp.any():
+            self.last = self.alpha * self.last + (1 - self.alpha) * self.grid[np.argmax(srp)]
+        return self.last / np.linalg.norm(self.last)
+'''
+
+
+def test_a_plug_in_trackers_spec_is_part_of_its_identity(tmp_path: Path, monkeypatch, capsys) -> None:
+    """``module:Class:8x16`` and ``module:Class:4x8`` (and an option) into one folder: three files,
+    each named by the whole tracker text, and three leaderboard rows whose labels carry the spec;
+    the leaderboard is read without the plug-in importable."""
+    import sys
+
+    from doabench.reporting.leaderboard import build_leaderboards
+    from doabench.results.labels import run_label
+
+    (tmp_path / "ema_plugin.py").write_text(PLUG_IN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    out = tmp_path / "r"
+    assert _run(out, "--tracker", "ema_plugin:EmaTracker:8x16") == 0
+    assert _run(out, "--tracker", "ema_plugin:EmaTracker:4x8") == 0
+    assert _run(out, "--tracker", "ema_plugin:EmaTracker:4x8", "--tracker-opt", "alpha=0.2") == 0
+    files = sorted(p.name for p in out.glob("*.json"))
+    assert len(files) == 3, files
+    assert "sim-demo__ema_plugin_EmaTracker_8x16.json" in files and "sim-demo__ema_plugin_EmaTracker_4x8.json" in files
+    labels = sorted(run_label(json.loads((out / f).read_text())) for f in files)
+    assert labels == ["ema_plugin:EmaTracker:4x8", "ema_plugin:EmaTracker:4x8 (alpha=0.2)",
+                      "ema_plugin:EmaTracker:8x16"]
+    monkeypatch.delitem(sys.modules, "ema_plugin")
+    (tmp_path / "ema_plugin.py").unlink()  # reading results imports nothing they name
+    page = build_leaderboards(out)["sim-demo.md"]
+    for label in labels:
+        assert f"`{label}`" in page
+    assert "ema_plugin" not in sys.modules

@@ -31,9 +31,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=DEFAULT_OUT,
                    help=f"folder for results files (default: {DEFAULT_OUT}/, git-ignored; the committed results/ "
                         "change only through `make update-demo-results` or an explicit --out results)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace a results file of the same name that holds a different configuration "
-                        "(other task version, weights or options); a rerun of the same configuration always replaces")
+    p.add_argument("--replace", "--overwrite", dest="overwrite", action="store_true",
+                   help="replace the results file of this run's name whatever it holds. Without it a file of "
+                        "another configuration (task version, weights, options), or one holding episodes this run "
+                        "does not take (4 episodes, then a run of --episodes 2), is refused before the work; a run "
+                        "of the same episodes, or of those and more, replaces it. --overwrite is its older name")
     p.add_argument("--no-frames", action="store_true", help="do not store per-frame estimates in the JSON")
     p.add_argument("--locata-submission", metavar="DIR",
                    help="LOCATA tasks: also write the estimates in the challenge's submission format, "
@@ -53,7 +55,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.files import write_text
     from doabench.results.writer import alias_files, check_overwrite, format_summary, weights_line, write_results
     from doabench.runner import RunSpec
-    from doabench.runner.selection import parse_cells
+    from doabench.runner.selection import parse_cells, select_episodes
     from doabench.trackers.registry import parse_options
 
     check_output_folder(args.out)  # before the work, not after it
@@ -72,9 +74,11 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.task!r} is {task.kind} (its VAD is the scene's)")
     out = Path(args.out)
     created = [p for p in [out, *out.parents] if not p.exists()]
-    # Refused before the work: a file of another configuration under this name (never overwritten silently).
-    is_partial = bool(args.cells) or (args.episodes is not None and args.episodes < task.episodes)
-    check_overwrite(spec.results_path(out), spec.configuration(), args.overwrite, partial=is_partial)
+    # Refused before the work: a file of another configuration under this name, or one holding episodes
+    # this run does not take (never replaced silently; the episodes are those of the file's task size).
+    cells = parse_cells(args.cells)
+    check_overwrite(spec.results_path(out), spec.configuration(), args.overwrite,
+                    episodes=lambda total: select_episodes(task, total, args.episodes, cells)[0])
     if args.locata_submission:
         _check_submission_option(args, task.kind)
     partial = spec.journal_path(out)
@@ -83,7 +87,7 @@ def main(args: argparse.Namespace) -> int:
     set_interrupt_note(args, lambda: _kept(args, partial))
     try:
         # a second run with the same --out, task and tracker is refused (the journal's lock)
-        results = spec.execute(tracker, out, episodes=args.episodes, cells=parse_cells(args.cells),
+        results = spec.execute(tracker, out, episodes=args.episodes, cells=cells,
                                device=args.device, progress=not args.quiet, keep_frames=not args.no_frames,
                                **corpus_kwargs(args))
         submission = _submission(args, results)  # built (and refused) before anything is written

@@ -34,9 +34,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="Ray cluster to use with --engine ray; default: a local Ray instance with --workers CPUs")
     p.add_argument("--workers", type=int, help="CPUs of the local Ray instance (default: 2 at most)")
     p.add_argument("--quiet", action="store_true", help="no progress bar (local engine)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace results files of another configuration (another task version, other "
-                        "weights) instead of refusing those runs")
+    p.add_argument("--replace", "--overwrite", dest="overwrite", action="store_true",
+                   help="replace results files in the way whatever they hold, instead of refusing those runs: "
+                        "without it a file of another configuration (another task version, other weights), or "
+                        "one holding episodes the run does not take (4, then --episodes 2), fails its run before "
+                        "the work. --overwrite is its older name")
     add_threads_option(p)  # of the local engine's runs; a Ray task gets its one CPU's thread from Ray
     add_corpus_options(p)
     p.set_defaults(func=main)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Collection, Mapping
 
 import pandas as pd
 
@@ -52,10 +52,10 @@ def results_stem(task_id: str, tracker_id: str, options: Mapping[str, Any] | Non
 def configuration(task_id: str, task_version: Any, tracker_id: str, options: Mapping[str, Any] | None,
                   weights_hash: str | None, delays: str | None,
                   task_options: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """What makes two runs the same configuration (the number of episodes does not: a longer run
-    of the same configuration replaces a shorter one): the task and its version, the run-time
-    options that change its episodes or scoring (``task_options``), the tracker, its options,
-    weights and SRP delays."""
+    """What makes two runs the same configuration (the number of episodes does not: a run of the
+    same configuration that takes the episodes of its file, or more, replaces it): the task and its
+    version, the run-time options that change its episodes or scoring (``task_options``), the
+    tracker, its options, weights and SRP delays."""
     return {"task": str(task_id), "task_version": None if task_version is None else int(task_version),
             "task_options": dict(task_options or {}),
             "tracker": str(tracker_id), "options": _name_options(options, weights_hash),
@@ -84,11 +84,26 @@ def _describe_difference(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
     return ", ".join(f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in keys) or "unknown difference"
 
 
-def check_overwrite(path: str | Path, config: Mapping[str, Any], overwrite: bool = False,
-                    partial: bool = False) -> None:
-    """Refuse to replace a results file that holds a different configuration (options, weights,
-    task version, delays) unless ``overwrite``; the same configuration is replaced (a rerun), but
-    not a complete run by a ``partial`` one (some episodes or cells only)."""
+#: the flag that replaces a results file whatever it holds (``--overwrite`` is its older name)
+REPLACE = "--replace (Python: overwrite=True)"
+
+
+def _episode_indices(data: Mapping[str, Any]) -> set[int]:
+    """The episode indices a results dictionary holds (its rows)."""
+    return {int(row["episode"]) for row in data.get("episodes") or [] if row.get("episode") is not None}
+
+
+def check_overwrite(path: str | Path, config: Mapping[str, Any], overwrite: bool = False, partial: bool = False,
+                    episodes: Collection[int] | Callable[[int], Collection[int]] | None = None) -> None:
+    """Refuse to replace a results file whose content would be lost, unless ``overwrite``
+    (``--replace``): a file of a different configuration (options, weights, task version, delays,
+    task options), or one of this configuration holding an episode this run does not take.
+
+    ``episodes``: the episode indices this run takes, or a function that gives them from the
+    task's episode count (the file's ``task.episodes_total``: the same configuration has the same
+    episodes). A run of the same episodes replaces its file (a rerun gives the same scores), and so
+    does one that takes every episode the file holds and more (it extends the file). Without
+    ``episodes``, a ``partial`` run (some episodes or cells) may not replace a complete one."""
     path = Path(path)
     if overwrite or not path.exists():
         return
@@ -97,25 +112,40 @@ def check_overwrite(path: str | Path, config: Mapping[str, Any], overwrite: bool
         old = results_configuration(data)
         task = data.get("task") or {}
         old_complete = bool(task.get("complete", task.get("episodes_run") == task.get("episodes_total")))
-    except (OSError, InputError, ValueError, AttributeError, TypeError):
-        raise InputError(f"{path} exists and is not a readable results file; move it away or pass --overwrite "
-                         "(Python: overwrite=True)") from None
+        held = _episode_indices(data)
+        total = int(task.get("episodes_total") or 0)
+    except (OSError, InputError, ValueError, AttributeError, TypeError, KeyError):
+        raise InputError(f"{path} exists and is not a readable results file; move it away or pass {REPLACE}") from None
     if dict(old) != dict(config):
         raise InputError(f"{path} holds a different configuration ({_describe_difference(old, config)}); "
-                         "pass --overwrite (Python: overwrite=True) to replace it, or choose another --out")
+                         f"pass {REPLACE} to replace it, or choose another --out")
+    if callable(episodes) and not total:  # a file that does not record its task's size
+        episodes = None
+    if episodes is not None:
+        taken = set(int(i) for i in (episodes(total) if callable(episodes) else episodes))
+        dropped = held - taken
+        if dropped:
+            whole = "a complete run of this configuration" if old_complete else "a run of this configuration"
+            raise InputError(f"{path} holds {whole} with {len(held)} episodes and this run takes "
+                             f"{len(taken)}, without {len(dropped)} of them: pass {REPLACE} to replace the file, "
+                             "run episodes that include them (the same --episodes and --cells, or more), or choose "
+                             "another --out")
+        return
     if partial and old_complete:
         raise InputError(f"{path} holds a complete run of this configuration and this run is partial (some episodes "
-                         "or cells): pass --overwrite (Python: overwrite=True) to replace it, or choose another --out")
+                         f"or cells): pass {REPLACE} to replace it, or choose another --out")
 
 
 def write_results(results: dict[str, Any], out_dir: str | Path, overwrite: bool = False) -> tuple[Path, Path]:
     """Write ``<stem>.json`` and ``<stem>.csv`` into ``out_dir`` (stem: :func:`results_stem` of the
-    run's configuration); returns both paths. A file of a different configuration under that name
-    is refused (:func:`check_overwrite`) unless ``overwrite``."""
+    run's configuration); returns both paths. A file under that name of a different configuration,
+    or holding episodes these results do not, is refused (:func:`check_overwrite`) unless
+    ``overwrite``."""
     out_dir = Path(out_dir)
     path = results_path(results, out_dir)
     task = results.get("task") or {}
-    check_overwrite(path, results_configuration(results), overwrite, partial=not task.get("complete", True))
+    check_overwrite(path, results_configuration(results), overwrite, partial=not task.get("complete", True),
+                    episodes=_episode_indices(results))
     stem = path.stem
     json_path = write_json(out_dir / f"{stem}.json", results)
     csv_path = out_dir / f"{stem}.csv"

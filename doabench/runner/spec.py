@@ -54,8 +54,9 @@ class RunSpec:
         options = dict(options or {})
         if isinstance(tracker, str):
             text, instance = tracker, instance if instance is not None else make_tracker(tracker, **options)
-        else:
-            text, instance = tracker.name, tracker
+        else:  # an instance: its id with the spec it was built with (a plug-in's ``module:Class:32x64``)
+            spec_text = getattr(tracker, "spec", None)
+            text, instance = (f"{tracker.name}:{spec_text}" if spec_text else tracker.name), tracker
         try:  # aliases name one model (doabench.trackers.registry.canonical_tracker)
             tracker_id, options = canonical_tracker(text, options, instance)
         except Exception:  # an instance of an unregistered class keeps its own name
