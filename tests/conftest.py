@@ -1,10 +1,31 @@
-"""Shared fixtures: paths to the optional real data in ../shared/data (tests skip without it)."""
+"""Shared fixtures: where the optional real data are (tests that need them skip without them, and
+the session ends with one line that counts the skips by reason)."""
+import os
+from collections import Counter
 from pathlib import Path
+from typing import Any, Iterable
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_LIBRISPEECH = ROOT.parent / "shared" / "data" / "LibriSpeech"
+
+
+def librispeech_location(environ: "os._Environ[str] | dict[str, str] | None" = None) -> tuple[Path | None, str]:
+    """``(root, "")`` of the real LibriSpeech the tests use, or ``(None, why not)``: the folder
+    ``DOABENCH_LIBRISPEECH`` names when it is set (as doabench itself reads it), else
+    ``../shared/data/LibriSpeech``; either must hold the ``test-other`` subset."""
+    environ = os.environ if environ is None else environ
+    given = environ.get("DOABENCH_LIBRISPEECH") or ""
+    root = Path(given).expanduser() if given else SHARED_LIBRISPEECH
+    if (root / "test-other").is_dir():
+        return root, ""
+    where = f"DOABENCH_LIBRISPEECH={given}" if given else f"{SHARED_LIBRISPEECH} (or set DOABENCH_LIBRISPEECH)"
+    return None, f"real LibriSpeech test-other subset not found at {where}"
+
+
+#: the real LibriSpeech of this session (None: the tests that need it skip with ``LIBRISPEECH_MISSING``)
+LIBRISPEECH, LIBRISPEECH_MISSING = librispeech_location()
 
 # Short scenes keep environment tests fast; the scene rate of 156 points per 20 s is kept.
 QUICK_SCENE = {"duration_s": 3.0, "n_points": 24}
@@ -33,9 +54,9 @@ room_max = [5.0, 5.0, 3.0]
 
 @pytest.fixture
 def librispeech_root() -> Path:
-    if not (SHARED_LIBRISPEECH / "test-other").is_dir():
-        pytest.skip(f"real LibriSpeech subset not found at {SHARED_LIBRISPEECH}")
-    return SHARED_LIBRISPEECH
+    if LIBRISPEECH is None:
+        pytest.skip(LIBRISPEECH_MISSING)
+    return LIBRISPEECH
 
 
 @pytest.fixture(autouse=True, scope="session")
@@ -105,3 +126,23 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.nodeid.startswith(SLOW_TESTS):
             item.add_marker(pytest.mark.slow)
+
+
+def skip_summary(reports: Iterable[Any]) -> str:
+    """One line counting skipped tests by reason, most frequent first (empty when none skipped)."""
+    reasons: Counter[str] = Counter()
+    for report in reports:
+        longrepr = getattr(report, "longrepr", None)
+        reason = longrepr[2] if isinstance(longrepr, tuple) and len(longrepr) == 3 else str(longrepr or "")
+        reasons[" ".join(str(reason).removeprefix("Skipped: ").split()) or "no reason given"] += 1
+    if not reasons:
+        return ""
+    n = sum(reasons.values())
+    return (f"skipped {n} test{'s' if n != 1 else ''}: "
+            + "; ".join(f"{count} {reason}" for reason, count in reasons.most_common()))
+
+
+def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
+    line = skip_summary(terminalreporter.stats.get("skipped", []))
+    if line:
+        terminalreporter.write_line(line)

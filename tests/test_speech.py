@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 
+from conftest import LIBRISPEECH, LIBRISPEECH_MISSING, SHARED_LIBRISPEECH
 from doabench.corpora import vad as vad_mod
 from doabench.corpora.download import DownloadError, download_librispeech
 from doabench.corpora.speech import (
@@ -25,9 +26,8 @@ from doabench.corpora.vad import clean_with_vad, webrtc_vad
 from doabench.errors import ConfigError, NotFoundError
 
 FS = 16000
-LIBRI = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "LibriSpeech"
-needs_libri = pytest.mark.skipif(not (LIBRI / "test-other").is_dir(),
-                                 reason="shared LibriSpeech subset (../shared/data/LibriSpeech) not present")
+LIBRI = LIBRISPEECH or SHARED_LIBRISPEECH  # DOABENCH_LIBRISPEECH, else ../shared/data/LibriSpeech
+needs_libri = pytest.mark.skipif(LIBRISPEECH is None, reason=LIBRISPEECH_MISSING)
 
 
 # --------------------------------------------------------------------------- VAD
@@ -134,6 +134,8 @@ def test_librispeech_chunks_from_shared_subset():
 
 
 @needs_libri
+@pytest.mark.skipif(not (LIBRI / "train-clean-100").is_dir() or LIBRI.name != "LibriSpeech",
+                    reason=f"the LibriSpeech root {LIBRI} has no train-clean-100 subset or is not named LibriSpeech")
 def test_librispeech_short_chapters_concatenate_and_root_forms(monkeypatch):
     src = LibriSpeechSource(LIBRI / "train-clean-100")  # the subset folder itself
     assert src.subset == "train-clean-100"
