@@ -251,6 +251,32 @@ def test_a_rerun_that_would_drop_episodes_is_refused_unless_replace(tmp_path, ca
     assert json.loads(json_path.read_text())["task"]["episodes_run"] == 1
 
 
+def test_run_says_partial_or_full_and_shows_the_committed_full_task_figure(tmp_path, capsys):
+    """A 1-episode run says it is partial and not comparable, and prints the committed full run of
+    its configuration (results/); a configuration without one prints no such line; the lag is
+    defined in one line under its figure."""
+    from doabench.cli.main import main
+    from doabench.results.writer import LAG_DEFINITION
+
+    committed = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
+    quick = ["--task", "sim-demo", "--episodes", "1", "--quiet", "--no-frames", "--out", str(tmp_path)]
+    assert main(["run", "--tracker", "srp-max", *quick]) == 0
+    out = capsys.readouterr().out
+    assert ("partial run: 1 of 4 episodes of sim-demo v2, listed apart and unranked on its leaderboard: its figures "
+            "are not comparable with a full-task figure") in out
+    s = committed["summary"]
+    assert (f"committed full-task run of this configuration ({ROOT / 'results' / 'sim-demo__srp-max_16x32.json'}"
+            if Path.cwd().resolve() != ROOT.resolve() else
+            "committed full-task run of this configuration (results/sim-demo__srp-max_16x32.json") in out
+    assert (f"4 episodes): RMSAE all frames {s['rmsae_all']:.2f} [{s['rmsae_all_ci95'][0]:.2f}, "
+            f"{s['rmsae_all_ci95'][1]:.2f}] deg") in out
+    lag = out.splitlines().index(LAG_DEFINITION)
+    assert out.splitlines()[lag - 1].startswith("tracking lag [s]")
+    assert main(["run", "--tracker", "srp-max:4x8", *quick]) == 0  # no committed run of this configuration
+    out = capsys.readouterr().out
+    assert "partial run: 1 of 4 episodes" in out and "committed full-task run" not in out
+
+
 def test_a_partial_rerun_never_replaces_a_complete_run(tmp_path, capsys):
     from doabench.cli.main import main
 

@@ -53,7 +53,8 @@ def main(args: argparse.Namespace) -> int:
     from doabench.envs.sources import kind_options, task_kind
     from doabench.errors import ConfigError
     from doabench.files import write_text
-    from doabench.results.writer import alias_files, check_overwrite, format_summary, weights_line, write_results
+    from doabench.results.writer import (alias_files, check_overwrite, coverage_lines, format_summary, weights_line,
+                                         write_results)
     from doabench.runner import RunSpec
     from doabench.runner.selection import parse_cells, select_episodes
     from doabench.trackers.registry import parse_options
@@ -107,6 +108,7 @@ def main(args: argparse.Namespace) -> int:
                 break
         raise
     print(format_summary(results))
+    print("\n".join(coverage_lines(results, json_path)))
     if results.get("locata"):
         from doabench.locata.report import run_lines
 

@@ -190,6 +190,52 @@ def weights_line(tracker: Mapping[str, Any]) -> str:
     return f"weights: {name} (sha256 {digest[:12]}" + (f", {Path(str(where)).name})" if where else ")")
 
 
+#: the line ``doabench run`` prints under the tracking lag
+LAG_DEFINITION = ("  lag: the delay (0-2 s) of the true direction that best fits the estimates; none where they "
+                  "do not follow the talker")
+
+
+def committed_results_dir() -> Path:
+    """The committed results of this checkout (``results/`` beside the ``doabench`` package)."""
+    return Path(__file__).resolve().parents[2] / "results"
+
+
+def coverage_lines(results: Mapping[str, Any], written: str | Path | None = None,
+                   committed: str | Path | None = None) -> list[str]:
+    """What ``doabench run`` prints after the scores: whether the run is full or partial, and the
+    figure of the committed run of the same configuration (``committed``: a results folder,
+    default :func:`committed_results_dir`) when there is one, complete and other than the file
+    just ``written``. A partial run is listed apart on the leaderboards, so its figure is not
+    comparable with the full-task one."""
+    from doabench.results.ranking import display_path
+    from doabench.results.schema import summary_problem
+
+    task = results.get("task") or {}
+    run, total = int(task.get("episodes_run") or 0), int(task.get("episodes_total") or 0)
+    full = bool(task.get("complete", run == total))
+    lines = [f"full run: all {total} episodes of {task.get('id')} v{task.get('version')}, ranked on its leaderboard"
+             if full else
+             f"partial run: {run} of {total} episodes of {task.get('id')} v{task.get('version')}, listed apart and "
+             "unranked on its leaderboard: its figures are not comparable with a full-task figure"]
+    path = results_path(results, committed_results_dir() if committed is None else committed)
+    if not path.is_file() or (written is not None and Path(written).resolve() == path.resolve()):
+        return lines
+    try:
+        _, data = read_json(path)
+        other = data.get("task") or {}
+        same = results_configuration(data) == results_configuration(results) and bool(other.get("complete"))
+        summary = data["summary"]
+        figure = (f"RMSAE all frames {float(summary['rmsae_all']):.2f} [{float(summary['rmsae_all_ci95'][0]):.2f}, "
+                  f"{float(summary['rmsae_all_ci95'][1]):.2f}] deg, voice-active {float(summary['rmsae_nonsilent']):.2f}")
+        same = same and not summary_problem(data)
+    except (OSError, InputError, ValueError, KeyError, TypeError, AttributeError, IndexError):
+        return lines
+    if same:
+        lines.append(f"committed full-task run of this configuration ({display_path(path)}, "
+                     f"{int(other.get('episodes_run') or 0)} episodes): {figure}")
+    return lines
+
+
 def format_summary(results: dict[str, Any]) -> str:
     """The table ``doabench run`` prints."""
     s = results["summary"]
@@ -218,6 +264,7 @@ def format_summary(results: dict[str, Any]) -> str:
         lag = s.get("lag_s")
         lines.append(f"{'tracking lag [s]':<34}{lag:>10.2f}" if lag is not None else
                      f"{'tracking lag [s]':<34}{'none':>10}   ({s.get('lag_note') or 'not defined'})")
+        lines.append(LAG_DEFINITION)
     bands = {k: v for k, v in (s.get("speed_bands") or {}).items() if v.get("n_frames")}
     if bands:
         lines.append(f"{'RMSAE by angular speed [deg/s]':<34}" + "   ".join(
