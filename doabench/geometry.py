@@ -225,3 +225,19 @@ def angular_speed_deg(directions: np.ndarray, period_s: float | np.ndarray) -> n
     out[0], out[-1] = step[0], step[-1]
     out[1:-1] = 0.5 * (step[1:] + step[:-1])
     return out
+
+
+# -- "no source": a frame without a direction ---------------------------------------------------
+#: What a tracker returns for a frame where it reports no source: three NaNs, as the LOCATA
+#: submission format writes a stamp without an estimate. Read-only; ``np.full(3, np.nan)`` is the same.
+NO_SOURCE: np.ndarray = np.full(3, np.nan)
+NO_SOURCE.flags.writeable = False
+#: The error in degrees that every frame score counts for a frame without an estimate, great-circle
+#: and azimuth alike: the mean error of a direction drawn at random (uniformly on the sphere), so
+#: saying "no source" never scores better than a guess (doabench.metrics).
+NO_SOURCE_ERROR_DEG = 90.0
+
+
+def is_no_source(directions: ArrayLike) -> np.ndarray:
+    """bool ``(...)``: which vectors ``(..., 3)`` say "no source" (every component NaN: :data:`NO_SOURCE`)."""
+    return np.asarray(np.all(np.isnan(np.asarray(directions, np.float64)), axis=-1))
