@@ -10,6 +10,7 @@ Public API::
     doabench.srp_maps(audio, "nao")    # SRP-PHAT maps + grid angles + argmax directions in one call
     doabench.SRPPHAT("nao", (64, 128))  # the same maps as a transform built once (tables kept)
     doabench.hold_in_silences(directions, vad, hold)   # the learned trackers' hold rule in silences
+    doabench.NO_SOURCE   # three NaNs: what step() returns (a row of track()) for a frame with no source
 
 What users implement or receive: ``Tracker`` (subclass it) and the ``ResetContext`` its
 ``reset(array, **context)`` gets; ``TaskSpec`` (a task's parsed TOML); ``EpisodeSource`` (the
@@ -34,6 +35,7 @@ from doabench.episode import Episode
 from doabench.errors import DoabenchError
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
+from doabench.geometry import NO_SOURCE
 from doabench.trackers import Tracker, available_trackers, hold_in_silences, make_tracker, register_tracker
 from doabench.trackers.base import ResetContext
 
@@ -125,7 +127,7 @@ def __dir__() -> list[str]:
 available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
-    "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "ObservationPlan", "ObservationSpec",
+    "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "NO_SOURCE", "ObservationPlan", "ObservationSpec",
     "ResetContext", "SRPPHAT",
     "TaskSpec", "Tracker", "TrainableTracker", "atomic_path", "available_tasks", "available_trackers", "get_array", "get_task_spec",
     "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",

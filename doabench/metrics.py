@@ -17,6 +17,14 @@ truth are both mirror-folded onto the upper half-space (the array cannot tell a 
 mirror image); every remaining frame counts in ``rmsae_all`` and the voice-active ones in the
 non-silent metrics.
 
+Frames where the tracker said "no source" (three NaNs, ``doabench.NO_SOURCE``) have no estimate.
+They stay in every pool and count the fixed error ``NO_SOURCE_ERROR_DEG`` (90 degrees, the mean
+error of a direction drawn at random on the sphere), great-circle and azimuth alike, so saying
+"no source" never scores better than a guess and every tracker's RMSAE pools the same frames;
+the runner reports how many frames had no estimate (``no_estimate`` in the rows and the summary).
+The lag leaves them out (they follow no path). A tracker that never says "no source" scores
+exactly as before.
+
 Aggregation over episodes comes in two labelled flavours: ``pooled`` (all frames of all episodes
 in one pool, the paper's way) and ``episode_mean`` (the mean of per-episode values).
 
@@ -54,8 +62,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from doabench.geometry import (angular_speed_deg, fold_to_upper, great_circle_error, normalize, unit_to_angles,
-                               wrap_angle)
+from doabench.geometry import (NO_SOURCE_ERROR_DEG, angular_speed_deg, fold_to_upper, great_circle_error,
+                               is_no_source, normalize, unit_to_angles, wrap_angle)
 
 THRESHOLDS_DEG = (5, 10, 20, 30)
 LAG_MAX_S = 2.0
@@ -70,16 +78,26 @@ KARCHER_STEPS = 20
 SPEED_BANDS = (("<5", 0.0, 5.0), ("5-15", 5.0, 15.0), ("15-30", 15.0, 30.0), (">30", 30.0, float("inf")))
 
 
+def _no_estimate_scored(errors: np.ndarray, estimates: np.ndarray) -> np.ndarray:
+    """``errors`` with the frames whose estimate says "no source" at ``NO_SOURCE_ERROR_DEG``."""
+    none = is_no_source(estimates)
+    return np.where(none, NO_SOURCE_ERROR_DEG, errors) if none.any() else errors
+
+
 def frame_errors_deg(estimates: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """Great-circle errors in degrees, ``(T, 3), (T, 3) -> (T,)``."""
-    return np.degrees(great_circle_error(np.asarray(estimates, np.float64), np.asarray(truth, np.float64)))
+    """Great-circle errors in degrees, ``(T, 3), (T, 3) -> (T,)``; a "no source" estimate (three
+    NaNs) counts ``NO_SOURCE_ERROR_DEG``."""
+    est = np.asarray(estimates, np.float64)
+    return _no_estimate_scored(np.degrees(great_circle_error(est, np.asarray(truth, np.float64))), est)
 
 
 def azimuth_errors_deg(estimates: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """Absolute wrapped azimuth errors in degrees, ``(T, 3), (T, 3) -> (T,)``."""
-    _, az_e = unit_to_angles(np.asarray(estimates, np.float64))
+    """Absolute wrapped azimuth errors in degrees, ``(T, 3), (T, 3) -> (T,)``; a "no source"
+    estimate counts ``NO_SOURCE_ERROR_DEG``."""
+    est = np.asarray(estimates, np.float64)
+    _, az_e = unit_to_angles(est)
     _, az_t = unit_to_angles(np.asarray(truth, np.float64))
-    return np.degrees(np.abs(wrap_angle(az_e - az_t)))
+    return _no_estimate_scored(np.degrees(np.abs(wrap_angle(az_e - az_t))), est)
 
 
 def _rms(x: np.ndarray) -> float:
@@ -374,14 +392,15 @@ def lag_curve(estimates: np.ndarray, truth: np.ndarray, vad: np.ndarray, frame_p
               max_lag_s: float = LAG_MAX_S, step_s: float = LAG_STEP_S) -> dict:
     """An episode's lag evidence (module docstring): ``{"lag_sse": (D,) summed squared errors in
     deg^2 per delay of :func:`lag_grid`, "lag_const_sse": the smallest of the best constant
-    direction's (:func:`best_constant_sse`) over the delays, "lag_frames": frames used,
+    direction's (:func:`best_constant_sse`) over the delays, "lag_frames": frames used (voice-active,
+    with an estimate),
     "lag_speed": median angular speed of the truth over them (deg/s)}``. ``estimates``,
     ``truth`` ``(T, 3)``, ``vad`` ``(T,)``."""
     est = np.asarray(estimates, np.float64)
     u = np.asarray(truth, np.float64)
     lags = lag_grid(max_lag_s, step_s)
     first = int(np.ceil(max_lag_s / frame_period_s - 1e-9))
-    use = np.asarray(vad, bool).copy()
+    use = np.asarray(vad, bool) & ~is_no_source(est)  # a frame without an estimate follows no path
     use[:first] = False
     if not use.any():
         return {"lag_sse": [0.0] * len(lags), "lag_const_sse": 0.0, "lag_frames": 0, "lag_speed": None}

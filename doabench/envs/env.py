@@ -4,6 +4,8 @@ One episode is one recording (simulated trajectory or real recording). ``reset``
 returns the features of frame 0; each ``step(action)`` takes the tracker's direction for the
 current frame, returns ``reward = -angular error`` (radians) for it and the features of the next
 frame. The truth of a frame is only revealed in ``info`` after its step, so a tracker cannot peek.
+An action of three NaNs (``doabench.NO_SOURCE``) says "no source" for the frame: it is scored at
+the fixed error ``NO_SOURCE_ERROR_DEG`` (90 degrees) and ``info["no_source"]`` is True.
 Nothing else about the episode is handed out while it runs: ``reset``'s ``info`` holds the episode
 index, its frame count and frame times, never the scene (room, trajectory, array position, T60,
 SNR, seed, speech). The evaluator's view of the episode (:meth:`DoaEnv.episode_metadata`,
@@ -38,7 +40,7 @@ from doabench.errors import ConfigError, InputError
 from doabench.features.kinds import DEFAULT_RESOLUTION, check_kinds, own_frame_kinds
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
-from doabench.geometry import fold_to_upper, great_circle_error, parse_resolution
+from doabench.geometry import NO_SOURCE_ERROR_DEG, fold_to_upper, great_circle_error, is_no_source, parse_resolution
 
 
 class DoaEnv(gymnasium.Env):
@@ -191,13 +193,14 @@ class DoaEnv(gymnasium.Env):
         if self._t >= self._n_frames:
             raise gymnasium.error.ResetNeeded("the episode is over; call reset()")
         a = np.asarray(action, dtype=np.float64)
-        if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.any(a):
-            raise InputError(f"action must be a finite, non-zero direction vector of shape (3,), got {a.shape} "
-                             f"{a!r}")
+        none = a.shape == (3,) and bool(is_no_source(a))
+        if a.shape != (3,) or not (none or (np.all(np.isfinite(a)) and np.any(a))):
+            raise InputError(f"action must be a finite, non-zero direction vector of shape (3,) or three NaNs "
+                             f"(doabench.NO_SOURCE: no source), got {a.shape} {a!r}")
         truth = self._truth["directions"][self._t]
-        error = float(great_circle_error(*self._as_scored(a, truth)))
+        error = self._scored_errors(a, truth)
         info = {"frame": self._t, "truth": truth.copy(), "vad": bool(self._truth["vad"][self._t]),
-                "error_rad": error, "time_s": float(self._truth["times"][self._t])}
+                "error_rad": error, "time_s": float(self._truth["times"][self._t]), "no_source": none}
         self._t += 1
         terminated = self._t >= self._n_frames
         return self._observation(self._t), -error, terminated, False, info
@@ -214,20 +217,27 @@ class DoaEnv(gymnasium.Env):
 
     def score_offline(self, directions: Any) -> np.ndarray:
         """Score every frame of the current episode at once: ``directions`` ``(T, 3)`` (the offline
-        tracker's output) -> the per-frame errors ``(T,)`` in radians. Ends the episode, as the
-        last ``step`` does: later steps raise ``ResetNeeded``."""
+        tracker's output; a row of three NaNs says no source) -> the per-frame errors ``(T,)`` in
+        radians. Ends the episode, as the last ``step`` does: later steps raise ``ResetNeeded``."""
         if self._episode_index is None:
             raise gymnasium.error.ResetNeeded("call reset() before score_offline()")
         if self._t >= self._n_frames and self._n_frames:
             raise gymnasium.error.ResetNeeded("the episode is over; call reset()")
         a = np.asarray(directions, dtype=np.float64)
-        if a.shape != (self._n_frames, 3) or not np.all(np.isfinite(a)) or not np.all(np.any(a, axis=1)):
-            raise InputError(f"directions must be finite, non-zero vectors of shape ({self._n_frames}, 3), "
-                             f"got {a.shape}")
-        errors = np.asarray(great_circle_error(*self._as_scored(a, self._truth["directions"])),
-                            dtype=np.float64).reshape(-1)
+        if a.shape != (self._n_frames, 3) or not np.all(is_no_source(a) | (np.all(np.isfinite(a), axis=1)
+                                                                          & np.any(a, axis=1))):
+            raise InputError(f"directions must be finite, non-zero vectors (or rows of three NaNs: no source) of "
+                             f"shape ({self._n_frames}, 3), got {a.shape}")
+        errors = np.asarray(self._scored_errors(a, self._truth["directions"]), dtype=np.float64).reshape(-1)
         self._t = self._n_frames
         return errors
+
+    def _scored_errors(self, estimate: np.ndarray, truth: np.ndarray) -> Any:
+        """Great-circle errors in radians of estimates ``(..., 3)`` against the truth as scored
+        (:meth:`_as_scored`); a frame without an estimate (three NaNs) counts ``NO_SOURCE_ERROR_DEG``."""
+        error = np.where(is_no_source(estimate), np.radians(NO_SOURCE_ERROR_DEG),
+                         great_circle_error(*self._as_scored(estimate, truth)))
+        return float(error) if error.ndim == 0 else error
 
     def _as_scored(self, estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Estimate and truth as every score sees them (doabench.metrics.score_frames): mirror-folded

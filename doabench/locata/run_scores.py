@@ -31,7 +31,8 @@ from doabench.locata.tracks import frame_ends, stamp_track, submission_files
 def episode_scores(rec: Recording, start_s: float, centres: np.ndarray, directions: np.ndarray, window: int,
                    fs: int) -> dict[str, Any] | None:
     """The measures of one episode: ``centres`` ``(F,)`` its frame centres (seconds from its first
-    sample, which lies at ``start_s``), ``directions`` ``(F, 3)`` the tracker's unit vectors.
+    sample, which lies at ``start_s``), ``directions`` ``(F, 3)`` the tracker's unit vectors (rows
+    of NaNs where it said no source: no active track at the stamps that take them).
     None (and a warning) when the recording's stamps cannot be scored."""
     try:
         truth = stamp_truth(rec)

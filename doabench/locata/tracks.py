@@ -2,8 +2,9 @@
 
 Every required stamp takes the latest estimate the tracker had given by then: a frame's estimate
 exists once the frame's last sample has arrived (its window's end), so stamp ``t`` takes the frame
-whose window ends last at or before ``t``; NaN before the first frame's end. Directions are turned
-into LOCATA's angles (doabench.locata.stamps.locata_angles).
+whose window ends last at or before ``t``; NaN before the first frame's end and where that frame's
+estimate is "no source" (three NaNs, ``doabench.NO_SOURCE``): the stamp has no active track.
+Directions are turned into LOCATA's angles (doabench.locata.stamps.locata_angles).
 """
 from __future__ import annotations
 
@@ -23,8 +24,8 @@ def frame_ends(start_s: float, centres: np.ndarray, window: int, fs: int) -> np.
 
 def stamp_track(required_times: np.ndarray, ends: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(azimuth (Q,), inclination (Q,))`` radians at the required stamps ``(Q,)`` from frames
-    ending at ``ends`` ``(F,)`` (increasing) with unit ``directions`` ``(F, 3)``; NaN before the
-    first frame's end."""
+    ending at ``ends`` ``(F,)`` (increasing) with unit ``directions`` ``(F, 3)`` (rows of NaNs: no
+    source); NaN before the first frame's end and where the latest frame says no source."""
     required_times = np.asarray(required_times, np.float64)
     latest = np.searchsorted(np.asarray(ends, np.float64), required_times, side="right") - 1
     if len(directions) == 0:

@@ -5,8 +5,8 @@ Per episode the loop resets the environment, resets the tracker with the array a
 steps frame by frame (causal trackers) or hands the whole episode over (offline trackers):
 :func:`track_frames`, which ``doabench track`` can share. The truth and the episode's metadata
 (for the results) are read from the environment once every frame has been scored. Every
-direction the tracker returns is checked (shape (3,), finite, non-zero) before it reaches the
-environment. Finished episodes are journalled (:mod:`doabench.runner.journal`), so an interrupted run continues where it stopped
+direction the tracker returns is checked (shape (3,), finite, non-zero, or three NaNs: "no
+source", :data:`doabench.geometry.NO_SOURCE`) before it reaches the environment. Finished episodes are journalled (:mod:`doabench.runner.journal`), so an interrupted run continues where it stopped
 when run again with the same settings; :mod:`doabench.runner.summary` assembles the results.
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ from doabench.envs.registry import get_task_spec
 from doabench.envs.sources import task_identity
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, DoabenchError, TrackerError
-from doabench.geometry import normalize
+from doabench.geometry import NO_SOURCE, is_no_source, normalize
 from doabench.files import to_json
 from doabench.provenance import environment
 from doabench.runner.journal import append_record, config_hash, load_journal
@@ -38,8 +38,13 @@ T = TypeVar("T")
 Progress = bool | Callable[[int, dict[str, Any]], object]
 
 
+#: how a refused non-finite output is told what "no source" is
+_NO_SOURCE_HINT = "(to say no source, return three NaNs: doabench.NO_SOURCE)"
+
+
 def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
-    """A tracker's output as a unit vector, or a TrackerError naming the tracker."""
+    """A tracker's output as a unit vector, or three NaNs where it says "no source"
+    (:data:`~doabench.geometry.NO_SOURCE`), or a TrackerError naming the tracker."""
     try:
         a = np.asarray(d, dtype=np.float64)
     except (TypeError, ValueError):
@@ -47,8 +52,11 @@ def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
                            "not a direction vector") from None
     if a.shape != (3,):
         raise TrackerError(f"tracker {tracker.name!r} returned shape {a.shape} at frame {frame}; expected (3,)")
+    if is_no_source(a):
+        return np.array(NO_SOURCE)  # a writable copy
     if not np.all(np.isfinite(a)):
-        raise TrackerError(f"tracker {tracker.name!r} returned a non-finite direction {a} at frame {frame}")
+        raise TrackerError(f"tracker {tracker.name!r} returned a non-finite direction {a} at frame {frame} "
+                           f"{_NO_SOURCE_HINT}")
     if not np.any(a):
         raise TrackerError(f"tracker {tracker.name!r} returned a zero vector at frame {frame}")
     # scaled by its largest component first: [1e200, 0, 0] is the x axis, not 0
@@ -56,15 +64,24 @@ def check_direction(tracker: Tracker, d: Any, frame: int) -> np.ndarray:
 
 
 def check_directions(tracker: Tracker, d: Any, n_frames: int) -> np.ndarray:
-    """The offline path's ``(T, 3)`` output, checked like :func:`check_direction`."""
-    a = np.asarray(d, dtype=np.float64)
+    """The offline path's ``(T, 3)`` output, checked like :func:`check_direction` (rows of three
+    NaNs say "no source" and stay NaN)."""
+    try:
+        a = np.asarray(d, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TrackerError(f"tracker {tracker.name!r} returned {type(d).__name__} from track(), "
+                           "not directions") from None
     if a.shape != (n_frames, 3):
         raise TrackerError(f"tracker {tracker.name!r} returned shape {a.shape}; expected ({n_frames}, 3)")
-    bad = ~np.all(np.isfinite(a), axis=1) | ~np.any(a, axis=1)
+    none = is_no_source(a)
+    bad = ~none & (~np.all(np.isfinite(a), axis=1) | ~np.any(a, axis=1))
     if bad.any():
-        raise TrackerError(f"tracker {tracker.name!r} returned a non-finite or zero direction at frame "
-                           f"{int(np.argmax(bad))}")
-    return normalize(a)
+        t = int(np.argmax(bad))
+        raise TrackerError(f"tracker {tracker.name!r} returned a non-finite or zero direction {a[t]} at frame "
+                           f"{t} {_NO_SOURCE_HINT}")
+    out = np.full_like(a, np.nan)
+    out[~none] = normalize(a[~none])
+    return out
 
 
 def guarded(tracker: Tracker, what: str, fn: Callable[..., T], *args: Any) -> T:
@@ -108,13 +125,13 @@ def make_env_for(tracker: Tracker, task: str | TaskSpec, device: str | None = No
 
 def step_frame(tracker: Tracker, observation: Any, t: int, where: str = "") -> np.ndarray:
     """One causal step: ``tracker.step(observation)`` for frame ``t``, guarded and checked (a unit
-    vector ``(3,)``); ``where`` ends the error messages."""
+    vector ``(3,)``, or three NaNs: no source); ``where`` ends the error messages."""
     return check_direction(tracker, guarded(tracker, f"step() at frame {t}{where}", tracker.step, observation), t)
 
 
 def track_frames(tracker: Tracker, n_frames: int, first: Any, advance: Callable[[int, np.ndarray], Any],
                  offline: Callable[[], Mapping[str, np.ndarray]], where: str = "") -> np.ndarray:
-    """A reset tracker's ``(n_frames, 3)`` checked unit directions.
+    """A reset tracker's ``(n_frames, 3)`` checked unit directions (three NaNs where it said no source).
 
     Causal trackers: ``step(obs)`` per frame, starting from observation ``first``;
     ``advance(t, direction)`` is called with each frame's checked direction and returns the next

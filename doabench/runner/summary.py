@@ -1,13 +1,18 @@
 """The results dictionary of a run (schema ``doabench.results/1``; docs/results-format.md): the
 scored frames and per-episode row of each episode, the pooled summary with its headline, the
-scoring notes, the grid cells, provenance and timings."""
+scoring notes, the grid cells, provenance and timings.
+
+Frames where the tracker said "no source" (``doabench.NO_SOURCE``) are scored at the fixed error of
+:mod:`doabench.metrics`; where a run has any, its rows count them (``no_estimate``,
+``no_estimate_nonsilent``) and its summary gives their share (``no_estimate``). A run without
+such frames has none of these keys: its results are what they always were."""
 from __future__ import annotations
 
 from typing import Any, Mapping
 
 import numpy as np
 
-from doabench.geometry import resolution_text
+from doabench.geometry import NO_SOURCE_ERROR_DEG, is_no_source, resolution_text
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
 from doabench.envs.spec import TaskSpec
@@ -36,7 +41,31 @@ def episode_row(index: int, ep: dict[str, Any]) -> dict[str, Any]:
            "recording": meta.get("recording"), "audio_s": ep["audio_s"], "tracker_s": ep["tracker_s"]}
     row.update(score_episode(ep["estimates"], ep["truth"], ep["vad"], ep.get("valid"), bool(ep.get("planar")),
                              ep.get("times")))
+    row.update(no_estimate_counts(ep["estimates"], ep["vad"], ep.get("valid")))
     return row
+
+
+def no_estimate_counts(estimates: Any, vad: Any, valid: Any = None) -> dict[str, int]:
+    """``{"no_estimate": n, "no_estimate_nonsilent": m}``: the scored frames (valid truth) where the
+    tracker said "no source", and the voice-active ones among them; empty when there are none."""
+    none = is_no_source(np.asarray(estimates, np.float64).reshape(-1, 3))
+    if valid is not None:
+        none = none & np.asarray(valid, bool).reshape(-1)
+    if not none.any():
+        return {}
+    return {"no_estimate": int(none.sum()), "no_estimate_nonsilent": int((none & np.asarray(vad, bool)).sum())}
+
+
+def no_estimate_summary(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The pooled share of scored frames without an estimate (``share_all``, ``share_nonsilent``
+    of voice-active frames) and their counts, or None when every frame had one."""
+    if not any("no_estimate" in r for r in rows):
+        return None
+    n = sum(int(r.get("no_estimate", 0)) for r in rows)
+    n_active = sum(int(r.get("no_estimate_nonsilent", 0)) for r in rows)
+    total, active = sum(int(r["n_frames"]) for r in rows), sum(int(r["n_nonsilent"]) for r in rows)
+    return {"frames": n, "nonsilent_frames": n_active, "share_all": n / total if total else float("nan"),
+            "share_nonsilent": n_active / active if active else float("nan"), "error_deg": NO_SOURCE_ERROR_DEG}
 
 
 def lag_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -75,6 +104,8 @@ def build_results(spec: TaskSpec, tracker: Tracker, tracker_text: str, tracker_o
         "episode_mean": agg["episode_mean"],
         **lag_summary(rows),
     }
+    if (none := no_estimate_summary(rows)) is not None:
+        summary["no_estimate"] = none
     recording_rows = [r for r in rows if r.get("recording") is not None]
     # The task kind's scoring policy (LOCATA's, the paper's Table II: the mean of the per-recording
     # RMSAEs); a kind that declares none is scored by what its episodes are.

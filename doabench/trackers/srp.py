@@ -8,7 +8,7 @@ import numpy as np
 from doabench.arrays import MicArray
 from doabench.errors import ConfigError
 from doabench.features.kinds import DEFAULT_RESOLUTION
-from doabench.geometry import grid_unit_vectors, parse_resolution
+from doabench.geometry import NO_SOURCE, grid_unit_vectors, parse_resolution
 from doabench.trackers.base import Tracker
 from doabench.trackers.registry import register_tracker
 
@@ -45,11 +45,24 @@ class _SrpGridTracker(Tracker):
         return direction
 
 
+#: what ``srp-max`` reports in a silent frame (its ``silence`` option)
+SILENCE_RULES = ("hold", "none")
+
+
 @register_tracker("srp-max")
 class SrpMaxTracker(_SrpGridTracker):
     """Argmax of each SRP-PHAT map (no tracking); holds the last estimate in silent frames.
 
-    Silent frames have zeroed maps and carry no information, so the previous estimate is held."""
+    Silent frames (the VAD marks them; their maps are zero) carry no information. Option
+    ``silence``: ``hold`` (default) repeats the previous estimate (straight ahead before the first
+    active frame); ``none`` reports no source (``doabench.NO_SOURCE``) in them, which the LOCATA
+    measures count as no active track."""
+
+    def __init__(self, spec: str | None = None, silence: str = "hold", **options: Any) -> None:
+        super().__init__(spec, **options)
+        if silence not in SILENCE_RULES:
+            raise ConfigError(f"srp-max: silence must be one of {', '.join(SILENCE_RULES)}, got {silence!r}")
+        self.silence = silence
 
     def reset(self, array: MicArray, **context: Any) -> None:
         super().reset(array, **context)
@@ -59,6 +72,8 @@ class SrpMaxTracker(_SrpGridTracker):
         d = self._argmax_direction(observation["srp"])
         if d is not None:
             self._last = d
+        elif self.silence == "none":
+            return NO_SOURCE
         return self._last
 
 
