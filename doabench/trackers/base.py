@@ -20,6 +20,13 @@ A tracker turns per-frame features into one direction estimate per frame. Subcla
             ...
             return np.array([x, y, z])        # unit vector, array frame
 
+A frame where the tracker finds no source (a silence, a detection below its threshold) returns
+three NaNs: ``doabench.NO_SOURCE`` (``np.full(3, np.nan)``; a row of NaNs in the ``(frames, 3)``
+output of :meth:`Tracker.track`). Any other output must be a finite, non-zero vector ``(3,)``; the
+runner refuses anything else in one line. A "no source" frame counts a fixed 90 degree error in the
+frame metrics, and on LOCATA tasks the stamps that take it have no active track
+(docs/adding-a-tracker.md, "Saying no source").
+
 Observations are dicts of numpy arrays for one frame, with the keys a tracker lists in
 ``features`` plus ``vad`` (1 if the frame is voice-active, else 0):
 
@@ -179,11 +186,13 @@ class Tracker:
         ``task``), each optional. Nothing about the episode's scene or truth is passed."""
 
     def step(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
-        """One frame in, one direction ``(3,)`` out (causal trackers)."""
+        """One frame in, one direction ``(3,)`` out (causal trackers), or ``doabench.NO_SOURCE``
+        (three NaNs) when it finds no source in the frame."""
         raise NotImplementedError(f"tracker {self.name!r} is offline-only: use track()")
 
     def track(self, episode: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Whole episode in (each value ``(frames, ...)``), directions ``(frames, 3)`` out.
+        """Whole episode in (each value ``(frames, ...)``), directions ``(frames, 3)`` out (a row of
+        three NaNs for a frame without a source).
 
         The default runs :meth:`step` frame by frame, so causal trackers need not override it.
         """
