@@ -32,6 +32,11 @@ class TrackerError(DoabenchError, RuntimeError):
     """A tracker misbehaved (NaN output, wrong shape, ...)."""
 
 
+class FeatureKindError(DoabenchError, RuntimeError):
+    """A feature kind misbehaved: its ``compute`` or ``frame_shape`` raised, or what it returned
+    is not what it declares (shape, real finite float32)."""
+
+
 class DependencyError(DoabenchError, ImportError):
     """An optional dependency (gpuRIR, ...) is missing."""
 

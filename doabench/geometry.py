@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import TYPE_CHECKING, Sequence, TypeGuard, Union, overload
+from typing import TYPE_CHECKING, Any, Sequence, TypeGuard, Union, overload
 
 import numpy as np
 
@@ -179,12 +179,37 @@ def parse_resolution(text: str) -> tuple[int, int]:
         n_theta, n_phi = int(a), int(b)
     except ValueError:
         raise ConfigError(f"resolution {text!r} is not of the form N_THETAxN_PHI, e.g. 16x32") from None
+    return check_grid(n_theta, n_phi, repr(text))
+
+
+def as_grid(resolution: Any) -> tuple[int, int]:
+    """An SRP grid written ``"16x32"`` or as two whole sizes (a tracker's declared ``resolution``),
+    bounded by :func:`check_grid`; else one line."""
+    from doabench.errors import ConfigError
+
+    if isinstance(resolution, str):
+        return parse_resolution(resolution)
+    try:
+        n_theta, n_phi = (int(v) for v in resolution)
+    except (TypeError, ValueError):
+        raise ConfigError(f"resolution must be (n_theta, n_phi) or 'NxM', got {resolution!r}") from None
+    return check_grid(n_theta, n_phi)
+
+
+def check_grid(n_theta: int, n_phi: int, text: str | None = None) -> tuple[int, int]:
+    """``(n_theta, n_phi)`` when it is an SRP grid doabench computes (at least 2 and at most
+    :data:`MAX_GRID_SIDE` per side, at most :data:`MAX_GRID_POINTS` points), else a one-line
+    ConfigError saying the size and the limit, before anything of its size is allocated. ``text``:
+    how the grid was written (default ``NxM``)."""
+    from doabench.errors import ConfigError
+
+    text = text or f"{n_theta}x{n_phi}"
     if n_theta < 2 or n_phi < 2:
-        raise ConfigError(f"resolution {text!r}: both N_theta and N_phi must be at least 2")
+        raise ConfigError(f"resolution {text}: both N_theta and N_phi must be at least 2")
     if n_theta > MAX_GRID_SIDE or n_phi > MAX_GRID_SIDE or n_theta * n_phi > MAX_GRID_POINTS:
-        raise ConfigError(f"resolution {text!r} is too fine: at most {MAX_GRID_SIDE} per side and "
+        raise ConfigError(f"resolution {text} is too fine: at most {MAX_GRID_SIDE} per side and "
                           f"{MAX_GRID_POINTS} grid points (e.g. 256x512), got {n_theta * n_phi}")
-    return n_theta, n_phi
+    return int(n_theta), int(n_phi)
 
 
 def grid_angles(n_theta: int, n_phi: int, planar: bool = False) -> tuple[np.ndarray, np.ndarray]:

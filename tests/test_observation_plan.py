@@ -189,7 +189,7 @@ def test_each_kind_computes_itself_from_one_shared_stft(monkeypatch):
     out = FeatureExtractor("nao", ("gcc",), frame_spec=SPEC)(audio, vad)
     assert out["vad"].any() and set(out["gcc"][out["vad"]].unique().tolist()) == {0.5}
     FEATURE_KINDS._entries["gcc"] = gcc
-    FEATURE_KINDS.register("gcc_copy", FeatureKind("gcc_copy", lambda c: (66, 7), compute=lambda s: s.gcc,
+    FEATURE_KINDS.register("gcc_copy", FeatureKind("gcc_copy", FEATURE_KINDS.get("gcc").frame_shape, compute=lambda s: s.gcc,
                                                    stages=("gcc",)))
     out = FeatureExtractor("nao", ("gcc_copy",), frame_spec=SPEC)(audio, vad)
     assert torch.equal(out["gcc_copy"], FeatureExtractor("nao", ("gcc",), frame_spec=SPEC)(audio, vad)["gcc"])

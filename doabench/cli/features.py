@@ -15,7 +15,7 @@ import numpy as np
 
 from doabench.geometry import resolution_text
 from doabench.errors import ConfigError, NotFoundError
-from doabench.features.kinds import EXTRACTOR_KINDS, FeatureKind, feature_kind
+from doabench.features.kinds import EXTRACTOR_KINDS, FeatureKind, call_kind, feature_kind
 from doabench.files import atomic_path, write_text
 from doabench.framing import DEFAULT_FS, DEFAULT_WINDOW, FrameSpec
 
@@ -76,7 +76,8 @@ def _sidecar(args, kind: FeatureKind, extractor, result, sr: int, resampled: boo
     }
     if kind.on_grid:
         meta.update(resolution=resolution_text(extractor.resolution), delays=extractor.mode)
-    meta.update(kind.axes(context) if kind.axes is not None else {"description": kind.description})
+    meta.update(call_kind(kind, "axes()", kind.axes, context) if kind.axes is not None
+                else {"description": kind.description})
     return meta
 
 
@@ -130,6 +131,8 @@ def run(args) -> int:
     extractor = stream.extractor
     shape = (spec.n_frames(rec.samples), *extractor.feature_shapes()[kind.name])
     result = _Shape(shape, np.dtype(np.float32))
+    # the sidecar is described first: a kind whose axes() fails stops the command before any file
+    meta = None if sidecar is None else _sidecar(args, kind, extractor, result, sr, resampled)
     written = 0
     with atomic_path(out) as tmp:
         with open(tmp, "wb") as f:  # the header np.save writes, then the frames as they complete
@@ -148,7 +151,6 @@ def run(args) -> int:
     if sidecar is None:
         print(f"wrote {out} {tuple(result.shape)} (a stream: no .json sidecar)")
         return 0
-    meta = _sidecar(args, kind, extractor, result, sr, resampled)
     write_text(sidecar, json.dumps(meta) + "\n")
     print(f"wrote {out} {tuple(result.shape)} and {sidecar}")
     return 0

@@ -401,8 +401,9 @@ def srp_phat(
 
 
 def _check_resolution(n_theta: int, n_phi: int) -> None:
-    if int(n_theta) < 2 or int(n_phi) < 2:
-        raise ConfigError(f"resolution {n_theta}x{n_phi}: both N_theta and N_phi must be at least 2")
+    from doabench.geometry import check_grid
+
+    check_grid(int(n_theta), int(n_phi))
 
 
 # --------------------------------------------------------------------------------------------

@@ -24,12 +24,13 @@ recording) at ``audio`` (docs/hdf5-schema.md).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Literal, NamedTuple, Sequence
 
 import numpy as np
 
-from doabench.errors import ConfigError
+from doabench.errors import ConfigError, DoabenchError, FeatureKindError, one_line
 from doabench.framing import FrameSpec
 from doabench.geometry import grid_angles, parse_resolution, resolution_text
 from doabench.plugins import Registry
@@ -43,6 +44,10 @@ DELAY_MODES = ("nearest", "exact")
 DelayMode = Literal["nearest", "exact"]
 #: Entry-point group of feature kinds added by other packages (``name = "package.module:KIND"``).
 ENTRY_POINT_GROUP = "doabench.feature_kinds"
+#: The most values one frame of a kind may hold (2**26: 256 MiB as float32, a 1024-microphone GCC
+#: at 16 kHz holds 50 million): a kind declaring more is refused before anything of that size is
+#: allocated (an observation space holds two arrays of one frame's size).
+MAX_FRAME_VALUES = 1 << 26
 #: The shared stages that need tables built once per extractor (pair lags, grid delays): a kind
 #: whose ``compute`` reads ``context.gcc`` declares ``"gcc"``, one reading ``context.maps`` ``"srp"``.
 STAGES = ("gcc", "srp")
@@ -99,6 +104,38 @@ class FeatureKind:
     def frames(self, context: FrameContext) -> FrameSpec:
         """The frames this kind is computed on in ``context``."""
         return (context.spectrogram_frame_spec or context.frame_spec) if self.own_frames else context.frame_spec
+
+
+def call_kind(kind: FeatureKind, what: str, fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)``, one of ``kind``'s own functions (``compute``, ``frame_shape``, ``axes``); an
+    exception it raises becomes a one-line :class:`FeatureKindError` naming the kind, as a
+    tracker's does (doabench's own errors pass through)."""
+    try:
+        return fn(*args)
+    except DoabenchError:
+        raise
+    except Exception as exc:
+        raise FeatureKindError(f"feature kind {kind.name!r} raised in {what}: {one_line(exc)}") from None
+
+
+def frame_shape_of(kind: FeatureKind, context: FrameContext) -> tuple[int, ...]:
+    """The shape of one frame of ``kind`` in ``context``, checked: whole sizes of at least 1, at
+    most :data:`MAX_FRAME_VALUES` values in all; else a one-line error naming the kind."""
+    declared = call_kind(kind, "frame_shape()", kind.frame_shape, context)
+    try:
+        dims = tuple(declared)
+        ok = all(isinstance(d, (int, np.integer)) and not isinstance(d, bool) and d >= 1 for d in dims)
+    except TypeError:
+        ok = False
+    if not ok:
+        raise FeatureKindError(f"feature kind {kind.name!r} declares the frame shape {declared!r}; expected a "
+                               "tuple of whole sizes of at least 1")
+    shape = tuple(int(d) for d in dims)
+    values = math.prod(shape)
+    if values > MAX_FRAME_VALUES:
+        raise ConfigError(f"feature kind {kind.name!r}: one frame of shape {shape} holds {values} values, more "
+                          f"than the limit of {MAX_FRAME_VALUES}")
+    return shape
 
 
 def _gcc_shape(c: FrameContext) -> tuple[int, ...]:

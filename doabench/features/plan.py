@@ -29,10 +29,11 @@ from doabench.features.kinds import (
     MAP_KINDS,
     FrameContext,
     feature_kind,
+    frame_shape_of,
     item_name,
 )
 from doabench.framing import FrameSpec, frame_signal
-from doabench.geometry import parse_resolution
+from doabench.geometry import as_grid
 
 if TYPE_CHECKING:  # torch is imported lazily (see the module docstring)
     from doabench.features.streaming import StreamingFeatureExtractor
@@ -53,9 +54,9 @@ def framed_audio(audio: np.ndarray, frame_spec: FrameSpec) -> np.ndarray:
 
 
 def _grid(resolution: str | Sequence[int]) -> tuple[int, int]:
-    """``"16x32"`` as trackers may declare it, or ``(n_theta, n_phi)``, as a tuple. The sizes are not
-    checked here: the extractor validates them (``as_resolution``'s ConfigError)."""
-    return parse_resolution(resolution) if isinstance(resolution, str) else cast("tuple[int, int]", tuple(resolution))
+    """``"16x32"`` as trackers may declare it, or ``(n_theta, n_phi)``, as a tuple, bounded before
+    any space or table of its size is built (:func:`~doabench.features.spec.as_grid`)."""
+    return as_grid(resolution)
 
 
 class ObservationPlan:
@@ -111,7 +112,7 @@ class ObservationPlan:
 
     def frame_shape(self, kind: str) -> tuple[int, ...]:
         """Per-frame shape of ``kind`` (without the frame axis) on the first grid."""
-        return tuple(feature_kind(kind).frame_shape(self.frame_context()))
+        return frame_shape_of(feature_kind(kind), self.frame_context())
 
     def space(self, kind: str) -> spaces.Box:
         """The Gymnasium box of one frame of ``kind`` (float32, the kind's bounds)."""

@@ -15,7 +15,7 @@ from doabench.errors import ConfigError
 from doabench.features.kinds import DEFAULT_RESOLUTION, DELAY_MODES, check_kinds, own_frame_kinds
 from doabench.geometry import resolution_text
 from doabench.framing import FrameSpec
-from doabench.geometry import parse_resolution
+from doabench.geometry import as_grid
 
 if TYPE_CHECKING:  # the plan imports torch lazily, but the spec needs none of it
     from doabench.arrays import MicArray
@@ -43,8 +43,7 @@ class ObservationSpec:
         kinds = (self.kinds,) if isinstance(self.kinds, str) else tuple(self.kinds)
         object.__setattr__(self, "kinds", check_kinds(kinds))
         resolution = self.resolution  # the constructor also takes "16x32" or any sequence of sizes
-        grid = parse_resolution(resolution) if isinstance(resolution, str) else tuple(int(v) for v in resolution)
-        object.__setattr__(self, "resolution", grid)
+        object.__setattr__(self, "resolution", as_grid(resolution))
         if self.delays not in DELAY_MODES:
             raise ConfigError(f"unknown delay mode {self.delays!r}: use one of {', '.join(DELAY_MODES)}")
         if not isinstance(self.frame_spec, FrameSpec) or not (

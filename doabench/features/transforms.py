@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike
 
 from doabench.geometry import resolution_text
 from doabench.arrays import MicArray, get_array
-from doabench.errors import ConfigError, InputError
+from doabench.errors import ConfigError, FeatureKindError, InputError
 from doabench.features import functional as F
 from doabench.features.context import STFTContext
 from doabench.features.kinds import (
@@ -28,13 +28,16 @@ from doabench.features.kinds import (
     DELAY_MODES,
     EXTRACTOR_KINDS,
     DelayMode,
+    FeatureKind,
     FrameContext,
+    call_kind,
     feature_kind,
+    frame_shape_of,
     observation_kinds,
     own_frame_kinds,
 )
 from doabench.framing import FrameSpec, frame_vad
-from doabench.geometry import SPEED_OF_SOUND, grid_unit_vectors, parse_resolution
+from doabench.geometry import SPEED_OF_SOUND, as_grid, grid_unit_vectors
 
 # Precompute the exact-mode steering table only below this size; above it the table is rebuilt
 # per grid block on every call (cheap next to the beamformer product for many frames).
@@ -43,14 +46,7 @@ _STEER_CACHE_BYTES = 256 << 20
 
 def as_resolution(resolution: str | Sequence[int]) -> tuple[int, int]:
     """``(n_theta, n_phi)`` from a pair or a ``"16x32"`` string."""
-    if isinstance(resolution, str):
-        return parse_resolution(resolution)
-    try:
-        n_theta, n_phi = (int(v) for v in resolution)
-    except (TypeError, ValueError):
-        raise ConfigError(f"resolution must be (n_theta, n_phi) or 'NxM', got {resolution!r}") from None
-    F._check_resolution(n_theta, n_phi)
-    return n_theta, n_phi
+    return as_grid(resolution)
 
 
 def prepare_audio(audio: np.ndarray | torch.Tensor, n_mics: int, min_samples: int = 0) -> tuple[torch.Tensor, bool]:
@@ -96,6 +92,30 @@ def prepare_vad(
         want = (batch, samples) if batched else (samples,)
         raise InputError(f"sample VAD has shape {tuple(v.shape)}, expected {want} to match the audio")
     return (v != 0).to(device)
+
+
+def checked_output(kind: FeatureKind, value: object, shape: tuple[int, ...]) -> torch.Tensor:
+    """What a plug-in kind's ``compute`` returned, checked against what it declares: a real tensor
+    of ``shape`` (batch, frames, then its frame shape), finite, as float32. Anything else is a
+    one-line :class:`FeatureKindError` naming the kind; nothing is cast that would change its
+    meaning (complex values are refused, not cut to their real part)."""
+    name = kind.name
+    if not isinstance(value, torch.Tensor):
+        raise FeatureKindError(f"feature kind {name!r} returned {type(value).__name__}; expected a float32 torch "
+                               f"tensor of shape {shape}")
+    if value.is_complex() or value.dtype == torch.bool:
+        raise FeatureKindError(f"feature kind {name!r} returned {str(value.dtype).replace('torch.', '')} values; "
+                               "a kind's frames are real float32")
+    if tuple(value.shape) != shape:
+        raise FeatureKindError(f"feature kind {name!r} returned shape {tuple(value.shape)}; it declares "
+                               f"{shape[2:]} a frame, so {shape} was expected")
+    value = value.to(torch.float32)
+    bad = ~torch.isfinite(value)
+    if bool(bad.any()):
+        frame = int(bad.reshape(shape[0], shape[1], -1).any(-1).any(0).int().argmax())
+        raise FeatureKindError(f"feature kind {name!r} returned NaN or infinite values ({int(bad.sum())} of "
+                               f"{value.numel()}, the first in frame {frame} of the block)")
+    return value
 
 
 class _Transform(torch.nn.Module):
@@ -297,6 +317,8 @@ class FeatureExtractor(_Transform):
         #: the kinds on the main frames, and those on their own (the second) frame grid
         self.main_kinds = tuple(k for k in self.kinds if k not in own)
         self.own_grid_kinds = own
+        self._shapes: dict[str, tuple[int, ...]] | None = None
+        self.feature_shapes()  # every kind's frame shape, checked before any audio is read
 
     # -- description ---------------------------------------------------------------------------
     @property
@@ -317,13 +339,16 @@ class FeatureExtractor(_Transform):
         return FrameContext(self.array, self.frame_spec, self.resolution, self.spectrogram_frame_spec)
 
     def feature_shapes(self) -> dict[str, tuple[int, ...]]:
-        """Per-frame shape of each output key (without batch and frame axes)."""
-        context = self.frame_context()
-        shapes: dict[str, tuple[int, ...]] = {k: tuple(feature_kind(k).frame_shape(context)) for k in self.kinds}
-        shapes["vad"] = ()
-        if self.separate_spectrogram_grid:
-            shapes["spectrogram_vad"] = ()
-        return shapes
+        """Per-frame shape of each output key (without batch and frame axes), as each kind declares
+        it (checked by :func:`~doabench.features.kinds.frame_shape_of`)."""
+        if self._shapes is None:
+            context = self.frame_context()
+            shapes = {k: frame_shape_of(feature_kind(k), context) for k in self.kinds}
+            shapes["vad"] = ()
+            if self.separate_spectrogram_grid:
+                shapes["spectrogram_vad"] = ()
+            self._shapes = shapes
+        return dict(self._shapes)
 
     # -- computation ---------------------------------------------------------------------------
     def _frame_vad(
@@ -335,9 +360,19 @@ class FeatureExtractor(_Transform):
 
     def _compute_kinds(self, kinds: tuple[str, ...], x: torch.Tensor, vad: torch.Tensor,
                        spec: FrameSpec) -> dict[str, torch.Tensor]:
-        """``kinds`` from one shared STFT context of ``x`` on ``spec``, silent frames zeroed."""
+        """``kinds`` from one shared STFT context of ``x`` on ``spec``, silent frames zeroed. A
+        plug-in kind's output is checked against its declaration (:func:`checked_output`)."""
         stft = STFTContext(x, vad, spec, self.array, self.gcc, self.srp)
-        return {k: F.zero_silent(feature_kind(k).compute(stft), vad) for k in kinds}  # type: ignore[misc]
+        out: dict[str, torch.Tensor] = {}
+        for k in kinds:
+            kind = feature_kind(k)
+            assert kind.compute is not None  # the constructor keeps computed kinds only
+            if k in EXTRACTOR_KINDS:
+                out[k] = F.zero_silent(kind.compute(stft), vad)
+            else:
+                shape = tuple(vad.shape) + self.feature_shapes()[k]
+                out[k] = F.zero_silent(checked_output(kind, call_kind(kind, "compute()", kind.compute, stft), shape), vad)
+        return out
 
     def compute(
         self, x: torch.Tensor, sample_vad: torch.Tensor | None, main: bool = True, separate: bool = True

@@ -45,6 +45,7 @@ from typing import Any, ClassVar, Mapping, Sequence, TypedDict
 
 import numpy as np
 
+from doabench.errors import ConfigError
 from doabench.geometry import resolution_text
 from doabench.arrays import MicArray
 from doabench.features.spec import ObservationSpec
@@ -120,8 +121,11 @@ class Tracker:
         map), its ``frame_spec``, the delays its weights were trained on (``nearest`` when none) and
         a ``spectrogram_frame_spec`` when it declares one. The environment, the trainer and
         ``doabench track`` compute exactly this unless the user asks for other delays on purpose."""
-        return ObservationSpec.of(self.features, self.resolution, self.frame_spec, self.trained_delays,
-                                  getattr(self, "spectrogram_frame_spec", None))
+        try:
+            return ObservationSpec.of(self.features, self.resolution, self.frame_spec, self.trained_delays,
+                                      getattr(self, "spectrogram_frame_spec", None))
+        except ConfigError as exc:  # what it declares is out of bounds: the message names the tracker
+            raise ConfigError(f"tracker {self.name!r}: {exc}") from None
 
     @property
     def receptive_field_frames(self) -> int | None:
