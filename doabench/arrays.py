@@ -13,7 +13,6 @@ The format is documented in docs/arrays.md.
 """
 from __future__ import annotations
 
-import itertools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +42,14 @@ _NAO_POSITIONS = (
     (0.035, 0.025, 0.039),
 )
 
+
+#: The most microphones an array may have. Pair distances, pair lists and GCC tables grow with the
+#: square of the count (20,000 microphones: 8.9 GiB of distances before any check); the largest
+#: arrays built (MIT's LOUD, 1,020 microphones; 1,024-microphone acoustic cameras) fit.
+MAX_MICS = 1024
+
+#: The largest array file read (4 MiB): checked before the file is read.
+MAX_ARRAY_FILE_BYTES = 4 << 20
 
 PLANAR_TOLERANCE = 1e-3  # z spread allowed for "planar", as a fraction of the aperture
 
@@ -74,6 +81,8 @@ class MicArray:
             raise ConfigError(f"{where}: positions must be a list of [x, y, z], got shape {pos.shape}")
         if pos.shape[0] < 2:
             raise ConfigError(f"{where}: needs at least 2 microphones, got {pos.shape[0]}")
+        if pos.shape[0] > MAX_MICS:
+            raise ConfigError(f"{where}: {pos.shape[0]} microphones, more than the limit of {MAX_MICS}")
         if not np.all(np.isfinite(pos)):
             raise ConfigError(f"{where}: positions contain NaN or infinite values")
         d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(len(pos))
@@ -91,7 +100,8 @@ class MicArray:
     @property
     def pairs(self) -> np.ndarray:
         """Unique microphone pairs ``(n_pairs, 2)`` with i < j, in lexicographic order."""
-        return np.array(list(itertools.combinations(range(self.n_mics), 2)), dtype=np.int64)
+        i, j = np.triu_indices(self.n_mics, 1)  # row by row: (0, 1), (0, 2), ..., (1, 2), ...
+        return np.stack([i, j], axis=1).astype(np.int64)
 
     @property
     def max_distance(self) -> float:
@@ -124,7 +134,12 @@ def load_array_file(path: str | Path) -> MicArray:
     """Load an array from a JSON or YAML file (format in the module docstring)."""
     path = Path(path)
     if not path.is_file():
-        raise NotFoundError(f"array file {path} does not exist")
+        raise NotFoundError(f"array file {path} does not exist" if not path.exists() else
+                            f"array file {path} is not a regular file")
+    size = path.stat().st_size
+    if size > MAX_ARRAY_FILE_BYTES:
+        raise ConfigError(f"array file {path} holds {size} bytes, more than the limit of {MAX_ARRAY_FILE_BYTES} "
+                          f"(an array of {MAX_MICS} microphones takes about 100 kB)")
     try:
         text = path.read_text()
         if path.suffix.lower() in (".yaml", ".yml"):
@@ -157,6 +172,8 @@ def _array_from_mapping(data, path: Path) -> MicArray:
     rows = data["positions"]
     if not isinstance(rows, list) or not rows:
         raise ConfigError(f"array file {path}: field 'positions' must be a non-empty list of [x, y, z]")
+    if len(rows) > MAX_MICS:
+        raise ConfigError(f"array file {path}: {len(rows)} microphones, more than the limit of {MAX_MICS}")
     for i, row in enumerate(rows):
         if not isinstance(row, list) or len(row) != 3:
             raise ConfigError(f"array file {path}: field 'positions[{i}]' must be a list of [x, y, z], got {row!r}"

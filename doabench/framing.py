@@ -16,12 +16,15 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from doabench.geometry import is_tensor
+from doabench.resampling import MAX_SAMPLE_RATE
 
 if TYPE_CHECKING:  # framing is imported without torch (gymnasium.make builds no features)
     import torch
 
 DEFAULT_FS = 16000
 DEFAULT_WINDOW = 4096
+#: The longest analysis window (2**20 samples, 65 s at 16 kHz): its STFT tables and frames grow with it.
+MAX_WINDOW = 1 << 20
 ACTIVE_FRACTION = 2.0 / 3.0
 
 
@@ -48,8 +51,14 @@ class FrameSpec:
 
         if self.window < 2 or self.hop < 1:
             raise ConfigError(f"invalid frame settings: window={self.window}, hop={self.hop}")
+        if self.window > MAX_WINDOW:
+            raise ConfigError(f"invalid frame settings: a window of {self.window} samples, more than the limit of "
+                              f"{MAX_WINDOW}")
         if self.fs < 1:
             raise ConfigError(f"invalid frame settings: the sample rate must be a positive number of Hz, got {self.fs}")
+        if self.fs > MAX_SAMPLE_RATE:
+            raise ConfigError(f"invalid frame settings: a sample rate of {self.fs} Hz, more than the limit of "
+                              f"{MAX_SAMPLE_RATE} Hz")
 
     def n_frames(self, n_samples: int) -> int:
         return n_frames(n_samples, self.window, self.hop)

@@ -76,6 +76,10 @@ def load_recording(path: str | Path, array: MicArray, fs: int, allow_resample: b
     if sr != fs:
         if not allow_resample:
             raise InputError(f"{path} is sampled at {sr} Hz, not {fs} Hz: pass --resample to convert it")
+        try:
+            rational_factors(sr, fs)  # bounded before any filter
+        except InputError as exc:
+            raise InputError(f"{path}: {exc}") from None
         audio, resampled = resample(audio, sr, fs).astype(np.float32), True
     if audio.shape[-1] < min_samples:
         raise InputError(f"{path} has {audio.shape[-1]} samples at {fs} Hz, shorter than one "
@@ -108,7 +112,10 @@ class Recording:
 
     def __init__(self, path: Path, n_channels: int, sr: int, n_in: int, fs: int) -> None:
         self.path, self.n_channels, self.sr, self.fs, self.n_in = path, n_channels, sr, fs, n_in
-        self.up, self.down = rational_factors(sr, fs)
+        try:
+            self.up, self.down = rational_factors(sr, fs)
+        except InputError as exc:  # named after the file that claims the rate
+            raise InputError(f"{path}: {exc}") from None
         self.resampled = sr != fs
         self.samples = -(-n_in * self.up // self.down)  # resample_poly's output length
 
@@ -175,7 +182,7 @@ def open_recording(path: str | Path, array: MicArray, fs: int, allow_resample: b
     if sr != fs and not allow_resample:
         rec = None
     else:
-        rec = Recording(path, n_channels, sr, n_in, fs)
+        rec = Recording(path, n_channels, sr, n_in, fs)  # its factors, bounded before any filter
     if check_finite:
         scan = Recording(path, n_channels, sr, n_in, sr)
         try:

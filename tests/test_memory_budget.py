@@ -103,3 +103,38 @@ def test_scene_overrides_beyond_memory_are_refused_before_the_run() -> None:
     with pytest.raises(ConfigError, match=r"^task 'sim-demo' scene duration_s 1e\+09 s: simulating a scene needs"):
         doabench.run("srp-max:4x8", "sim-demo", episodes=1, progress=False,
                      scene_overrides={"duration_s": 1e9, "n_points": 8})
+
+
+@pytest.mark.parametrize("backend, t60, refused", [
+    ("pyroomacoustics-full", "5", "pyroomacoustics-full's image sources to reflection order 595"),
+    ("pyroomacoustics", "5", "pyroomacoustics's image sources"),
+    ("torchrir", "400", "the torchrir engine"),
+])
+def test_each_engine_has_its_own_budget(backend: str, t60: str, refused: str, tmp_path: Path, capsys) -> None:
+    """pyroomacoustics-full at T60 5 s passed the builtin engine's check (about 1 GiB) and died in
+    ``std::bad_alloc``: its images to order 595 (281 million) are counted; so are pyroomacoustics'
+    images of 8 sources a room and torchrir's float32 responses."""
+    pytest.importorskip("torchrir" if backend == "torchrir" else "pyroomacoustics")
+    out = tmp_path / "s"
+    assert main(["simulate", "--backend", backend, "--t60", t60, "--out", str(out)]) == 2
+    err = _one_line(capsys)
+    # the field driving the cost: the T60 for the image sources, the trajectory for torchrir's responses
+    field = "scene n_points 156:" if backend == "torchrir" else f"--t60 {t60}:"
+    assert f"{field} simulating a scene needs about" in err and refused in err, err
+    assert "16 GiB of this machine" in err and list(tmp_path.iterdir()) == []
+    assert budget.costliest_scene(SceneDistribution(t60=(5.0, 5.0)), 12).total < 2 * GIB  # the builtin's: fits
+
+
+def test_the_engines_budgets_follow_their_image_counts() -> None:
+    """The paper's scenes fit every engine in 4 GiB; pyroomacoustics-full's order follows
+    pyroomacoustics' inverse_sabine rule at Tmax, and its images the octahedron of that order."""
+    pytest.importorskip("pyroomacoustics")
+    import pyroomacoustics as pra
+
+    from doabench.acoustics.room import max_time
+
+    for backend in ("builtin", "pyroomacoustics", "pyroomacoustics-full", "torchrir"):
+        assert budget.costliest_scene(SceneDistribution(), 12, backend).total < 4 * GIB, backend
+    for dims, t60 in (((3.0, 3.0, 2.5), 0.9), ((6.0, 5.0, 3.0), 1.3), ((3.0, 4.0, 2.5), 5.0)):
+        assert budget.pra_full_order(dims, t60) == pra.inverse_sabine(max_time(t60), list(dims), c=343.0)[1]
+    assert [budget.octahedral_images(n) for n in (0, 1, 2)] == [1, 7, 25]

@@ -9,11 +9,28 @@ one line naming the field and the estimate (:func:`check_fits`), before anything
 allocated or written; ``simulate``, every simulated task's episode source (``run``,
 ``make-dataset``, ``sweep``) and ``train`` check it.
 
-The estimate is meant as a bound of the peak, not an exact count: the sizes below are those of the
-builtin engine (:mod:`doabench.acoustics.rir`, :mod:`doabench.acoustics.convolution`) with
-allowance for the other backends, which hold whole responses in float64. The builtin engine's
-measured peaks (growth of the process's maximum resident size while rendering one scene) were
-35-86 % of it, from 20 s scenes at T60 1.3 s to a T60 of 6 s in a 3 x 3 x 2.5 m room.
+The estimate is meant as a bound of the peak, not an exact count, and it is the engine's
+(:func:`simulation_bytes`, ``backend``):
+
+* ``builtin`` (and gpuRIR, whose image sources live on the GPU, and a plug-in simulator, of which
+  nothing is known): the sizes of the builtin engine (:mod:`doabench.acoustics.rir`,
+  :mod:`doabench.acoustics.convolution`) with allowance for responses held in float64. Its
+  measured peaks (growth of the process's maximum resident size while rendering one scene) were
+  35-86 % of it, from 20 s scenes at T60 1.3 s to a T60 of 6 s in a 3 x 3 x 2.5 m room.
+* ``pyroomacoustics``: the builtin's, plus pyroomacoustics' own image sources up to Tdiff: every
+  image of reflection order up to ``N`` (``(2N + 1)(2N^2 + 2N + 3) / 3`` of them), for up to
+  8 sources a room, each image about ``224 + 32 M`` bytes with ``M`` microphones (measured at
+  order 100, 1.35 million images of one source: 264, 523 and 824 bytes for 2, 12 and 24
+  microphones; with 8 sources at order 58, 260 bytes an image for 12 microphones, so the count
+  is an upper bound there).
+* ``pyroomacoustics-full``: those images for one source a room, to the order of
+  pyroomacoustics' ``inverse_sabine`` rule at Tmax (``ceil(c Tmax / R) - 1``, ``R`` the smallest
+  of ``l1 l2 / sqrt(l1^2 + l2^2)`` over the room's pairs of sides): the order grows as ``c T60 /
+  L`` and the images as its cube, so ``--t60 5`` in a small room asks for hundreds of millions of
+  images (tens of GiB), which pyroomacoustics' C++ core would die on (``std::bad_alloc``).
+* ``torchrir``: torchrir walks its image grid in chunks of bounded size, so its image count sets
+  its time, not its memory; its responses (float32, with the diffuse tail's temporaries: measured
+  13 bytes a tap, counted 16) and a fixed allowance for the chunks (48 MiB) are counted.
 """
 from __future__ import annotations
 
@@ -44,6 +61,16 @@ _SAMPLE_BYTES_PER_MIC = 24
 _SAMPLE_BYTES = 64
 # The diffuse tail (one per microphone) and the spectra of its convolution with the signal.
 _TAIL_BYTES_PER_TAP = 16
+# Bytes per pyroomacoustics image source: a fixed part and a part per microphone (its visibility
+# and the distances and delays of compute_rir), measured at order 100 with 2, 12 and 24 microphones.
+_PRA_IMAGE_BYTES = 224
+_PRA_IMAGE_BYTES_PER_MIC = 32
+# pyroomacoustics sources per room in the ``pyroomacoustics`` backend (its SOURCES_PER_ROOM).
+_PRA_SOURCES_PER_ROOM = 8
+# torchrir: bytes per tap of the responses (float32, the tail's temporaries, the per-call batch)
+# and its image chunks' temporaries (about ten tensors of 2**18 elements, with slack).
+_TORCHRIR_TAP_BYTES = 16
+_TORCHRIR_CHUNK_BYTES = 48 << 20
 # cgroup limits of the process's memory (v2, then v1): a container can have less than the machine.
 _CGROUP_LIMITS = ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes")
 
@@ -70,21 +97,61 @@ def image_candidates(dims: tuple[float, float, float], horizon_m: float) -> floa
     return math.prod(2.0 * (2.0 * (horizon_m / (2.0 * length) + 2.0) + 1.0) for length in dims)
 
 
+def octahedral_images(order: float) -> float:
+    """Images of reflection order up to ``order`` in a shoebox room: the integer points of the
+    octahedron ``|i| + |j| + |k| <= order``, ``(2N + 1)(2N^2 + 2N + 3) / 3`` (a float: absurd orders
+    overflow every integer type)."""
+    n = max(0.0, float(order))
+    return (2.0 * n + 1.0) * (2.0 * n * n + 2.0 * n + 3.0) / 3.0
+
+
+def pra_full_order(dims: tuple[float, float, float], t60: float) -> float:
+    """The reflection order the ``pyroomacoustics-full`` backend asks of pyroomacoustics
+    (``inverse_sabine`` at Tmax, falling back to the T60 where its absorption check refuses Tmax,
+    as :meth:`~doabench.acoustics.backends.pra_full.PyroomacousticsFullSimulator.image_order`
+    does), computed here without importing pyroomacoustics."""
+    if t60 <= 0:
+        return 0.0
+    pairs = ((dims[0], dims[1]), (dims[0], dims[2]), (dims[1], dims[2]))
+    radius = min(a * b / math.hypot(a, b) for a, b in pairs)
+    volume = math.prod(dims)
+    surface = 2.0 * sum(a * b for a, b in pairs)
+    t = max_time(t60)
+    if 24.0 * math.log(10.0) * volume / (SPEED_OF_SOUND * surface * t) > 1.0:
+        t = t60  # inverse_sabine refuses so short a time: the backend asks for the T60's order
+    return max(0.0, math.ceil(SPEED_OF_SOUND * t / radius - 1.0))
+
+
+def _pra_image_bytes(order: float, n_mics: int, sources_per_room: int) -> float:
+    return octahedral_images(order) * sources_per_room * (_PRA_IMAGE_BYTES + _PRA_IMAGE_BYTES_PER_MIC * n_mics)
+
+
 def simulation_bytes(dims: tuple[float, float, float], t60: float, n_mics: int, n_points: int,
-                     duration_s: float, fs: int) -> SimulationCost:
-    """The peak memory of simulating one scene: a room of ``dims`` metres with ``t60`` seconds of
-    reverberation, ``n_mics`` microphones, a trajectory of ``n_points`` points and ``duration_s``
-    seconds of audio at ``fs`` Hz."""
+                     duration_s: float, fs: int, backend: str = "builtin") -> SimulationCost:
+    """The peak memory of simulating one scene with the engine ``backend`` (module docstring): a
+    room of ``dims`` metres with ``t60`` seconds of reverberation, ``n_mics`` microphones, a
+    trajectory of ``n_points`` points and ``duration_s`` seconds of audio at ``fs`` Hz."""
     n_taps = max_time(t60) * fs
     horizon_m = (diffuse_start(t60) * fs + SINC_HALF) / fs * SPEED_OF_SOUND
     # Each point's response is convolved with its segment zero-padded to a common FFT length, so
     # the points' responses also hold the samples of the whole signal once.
     per_sample = _SAMPLE_BYTES_PER_MIC * n_mics + _SAMPLE_BYTES + _TAP_BYTES * n_mics
-    return SimulationCost(
-        images=_IMAGE_BYTES * image_candidates(dims, horizon_m) + _TAIL_BYTES_PER_TAP * n_mics * n_taps,
-        responses=_TAP_BYTES * n_mics * n_points * n_taps,
-        signals=duration_s * fs * per_sample,
-    )
+    signals = duration_s * fs * per_sample
+    builtin_images = _IMAGE_BYTES * image_candidates(dims, horizon_m) + _TAIL_BYTES_PER_TAP * n_mics * n_taps
+    responses = _TAP_BYTES * n_mics * n_points * n_taps
+    if backend == "pyroomacoustics":
+        # pyroomacoustics' order for the images within reach of Tdiff: along each axis an image
+        # ``d`` metres away reflects about ``d / L`` times (plus the room's own span)
+        order = horizon_m * math.sqrt(sum(1.0 / length**2 for length in dims)) + 9.0
+        sources = max(1, min(n_points, _PRA_SOURCES_PER_ROOM))
+        return SimulationCost(builtin_images + _pra_image_bytes(order, n_mics, sources), responses, signals)
+    if backend == "pyroomacoustics-full":
+        # one source a room; its RIR lists (float64, per microphone) beside the images
+        images = _pra_image_bytes(pra_full_order(dims, t60), n_mics, 1) + 2 * _TAP_BYTES * n_mics * n_taps
+        return SimulationCost(images, responses, signals)
+    if backend == "torchrir":
+        return SimulationCost(float(_TORCHRIR_CHUNK_BYTES), _TORCHRIR_TAP_BYTES * n_mics * n_points * n_taps, signals)
+    return SimulationCost(builtin_images, responses, signals)
 
 
 def machine_memory() -> int | None:
@@ -124,10 +191,11 @@ def _seconds(name: str, value: float) -> str:
     return f"{name} {value:g}" + ("" if name.startswith("--") else " s")
 
 
-def costliest_scene(dist: SceneDistribution, n_mics: int) -> SimulationCost:
-    """:func:`simulation_bytes` of the costliest scene ``dist`` can draw: the smallest room (the
-    most images within reach) at the highest T60, a moving source over every trajectory point."""
-    return simulation_bytes(dist.room_min, dist.t60[1], n_mics, dist.n_points, dist.duration_s, dist.fs)
+def costliest_scene(dist: SceneDistribution, n_mics: int, backend: str = "builtin") -> SimulationCost:
+    """:func:`simulation_bytes` of the costliest scene ``dist`` can draw on ``backend``: the
+    smallest room (the most images within reach) at the highest T60, a moving source over every
+    trajectory point."""
+    return simulation_bytes(dist.room_min, dist.t60[1], n_mics, dist.n_points, dist.duration_s, dist.fs, backend)
 
 
 def _field(dist: SceneDistribution, cost: SimulationCost, names: Mapping[str, str]) -> str:
@@ -141,18 +209,27 @@ def _field(dist: SceneDistribution, cost: SimulationCost, names: Mapping[str, st
     return _seconds(names["duration_s"], dist.duration_s)  # the points follow the duration there
 
 
-def check_fits(dist: SceneDistribution, n_mics: int, fields: Mapping[str, str] | None = None) -> None:
+def check_fits(dist: SceneDistribution, n_mics: int, fields: Mapping[str, str] | None = None,
+               backend: str = "builtin") -> None:
     """Raise :class:`ConfigError` when simulating the costliest scene of ``dist`` with ``n_mics``
-    microphones would need more memory than this machine has. The message names the field that
-    drives the cost most (``t60``, ``n_points`` or ``duration_s``, as ``fields`` spells them, e.g.
-    ``{"t60": "--t60"}``; default ``scene t60`` ...) and the estimate. A ``n_points`` spelt like
-    ``duration_s`` follows the duration (``simulate --duration`` scales the trajectory)."""
+    microphones on the engine ``backend`` would need more memory than this machine has. The
+    message names the field that drives the cost most (``t60``, ``n_points`` or ``duration_s``, as
+    ``fields`` spells them, e.g. ``{"t60": "--t60"}``; default ``scene t60`` ...) and the estimate.
+    A ``n_points`` spelt like ``duration_s`` follows the duration (``simulate --duration`` scales
+    the trajectory)."""
     available = machine_memory()
-    cost = costliest_scene(dist, n_mics)
+    cost = costliest_scene(dist, n_mics, backend)
     if available is None or cost.total <= available:
         return
     names = {**scene_fields("scene"), **(fields or {})}
-    detail = (f"room impulse responses of {max_time(dist.t60[1]):.3g} s for {n_mics} microphones x {dist.n_points} "
-              f"trajectory points, {dist.duration_s:.3g} s of audio")
+    engine = ""
+    if backend in ("pyroomacoustics", "pyroomacoustics-full") and cost.images >= max(cost.responses, cost.signals):
+        order = (pra_full_order(dist.room_min, dist.t60[1]) if backend == "pyroomacoustics-full" else None)
+        engine = (f"{backend}'s image sources to reflection order {order:.3g}, " if order is not None
+                  else f"{backend}'s image sources, ")
+    elif backend != "builtin":
+        engine = f"the {backend} engine: "
+    detail = (f"{engine}room impulse responses of {max_time(dist.t60[1]):.3g} s for {n_mics} microphones x "
+              f"{dist.n_points} trajectory points, {dist.duration_s:.3g} s of audio")
     raise ConfigError(f"{_field(dist, cost, names)}: simulating a scene needs {_estimate(cost.total)} of memory "
                       f"({detail}), more than the {_gib(available)} of this machine")

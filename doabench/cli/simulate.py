@@ -261,7 +261,7 @@ def main(args: argparse.Namespace) -> int:
             raise ConfigError(f"--seed must be >= 0, got {seed}")
         dist, source, array_name = build_distribution(args)
         array = get_array(array_name)
-        check_fits(dist, array.n_mics, memory_fields(args))  # before the scene is drawn
+        check_fits(dist, array.n_mics, memory_fields(args), simulator.name)  # before the scene is drawn
         scene = sample_scene(dist, seed, source, array=array)
     episode = render_scene(scene, source, array, simulator=simulator, device=args.device)
     meta = episode.metadata

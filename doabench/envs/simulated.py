@@ -52,7 +52,7 @@ class SimulatedEpisodes:
             cell = spec.params.get("cell", {}).get("index")
             self._cells = [(cell, self._distribution(spec, scene_overrides), spec)]
         for _, dist, cell_spec in self._cells:  # before any episode is drawn, simulated or written
-            check_fits(dist, self.array.n_mics, scene_fields(f"task {cell_spec.id!r} scene"))
+            check_fits(dist, self.array.n_mics, scene_fields(f"task {cell_spec.id!r} scene"), self.simulator.name)
         self.scene_overrides = dict(scene_overrides or {})
         self._per_cell = spec.episodes // len(self._cells)
 
