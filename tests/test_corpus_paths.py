@@ -65,6 +65,22 @@ def test_simulate_treats_the_flag_and_the_environment_alike(official_root, tmp_p
     assert _simulate(tmp_path / "sub", "--subset", "dev-clean")["speech"]["subset"] == "dev-clean"
 
 
+def test_a_librispeech_path_that_is_a_file_says_so(tmp_path, monkeypatch, capsys):
+    """A file given as the corpus (an archive not yet unpacked) is "not a folder", by flag or by
+    environment alike, not "does not exist"."""
+    archive = tmp_path / "test-clean.tar.gz"
+    archive.write_bytes(b"\x1f\x8b not unpacked")
+    monkeypatch.delenv(LIBRISPEECH_ENV, raising=False)
+    assert main(["simulate", "--duration", "1", "--out", str(tmp_path / "a"), "--librispeech", str(archive)]) == 2
+    monkeypatch.setenv(LIBRISPEECH_ENV, str(archive))
+    assert main(["simulate", "--duration", "1", "--out", str(tmp_path / "b"), "--subset", "test-clean"]) == 2
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert len(errors) == 2 and "Traceback" not in "".join(errors), errors
+    for err in errors:
+        assert f"LibriSpeech path {archive} is not a folder" in err and "does not exist" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["test-clean.tar.gz"]
+
+
 def test_a_task_finds_librispeech_by_keyword_or_environment(official_root, monkeypatch):
     from doabench.envs.sources import make_speech_source
 

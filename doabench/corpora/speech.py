@@ -129,6 +129,8 @@ def resolve_librispeech(root: str | os.PathLike | None, subset: str | None) -> t
         raise NotFoundError(f"no LibriSpeech path given and {LIBRISPEECH_ENV} is not set; {_how_to_get(wanted)}")
     base = Path(root).expanduser()
     if not base.is_dir():
+        if base.exists():  # a file (a .tar.gz not yet unpacked, say), a FIFO, a device
+            raise ConfigError(f"LibriSpeech path {base} is not a folder; {_how_to_get(wanted)}")
         raise NotFoundError(f"LibriSpeech path {base} does not exist; {_how_to_get(wanted)}")
     if subset is not None and subset not in LIBRISPEECH_SUBSETS and not _looks_like_subset(base / subset):
         raise ConfigError(f"unknown LibriSpeech subset {subset!r} (official: {', '.join(LIBRISPEECH_SUBSETS)})")
