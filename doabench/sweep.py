@@ -140,8 +140,10 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
             continue
         try:  # refuse to replace another configuration's file, or drop its episodes, now, not after the run
             task = get_task_spec(spec.task_ref)
-            check_overwrite(spec.results_path(out), spec.configuration(), overwrite,
-                            episodes=lambda total, task=task: select_episodes(task, total, episodes)[0])
+            def taken(total: int, task: Any = task) -> Any:  # the episodes this run takes of a task of `total`
+                return select_episodes(task, total, episodes)[0]
+
+            check_overwrite(spec.results_path(out), spec.configuration(), overwrite, episodes=taken)
         except DoabenchError as exc:
             run.status, run.error = "failed", str(exc)
             _log_run(run, log)

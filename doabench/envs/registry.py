@@ -194,6 +194,9 @@ def get_task_spec(task_id: str | TaskSpec) -> TaskSpec:
     key = task_id
     if key.startswith("doabench/"):
         key = key[len("doabench/"):]
+        head, colon, _ = key.partition(":")
+        if colon and TASK_PREFIXES.find(head) is not None:  # a prefixed task's Gymnasium id: doabench/file:x.h5-v0
+            return get_task_spec(key.rsplit("-v", 1)[0])
     versioned = _versioned(key)
     if versioned is not None:
         return _version_of(task_id, *versioned)

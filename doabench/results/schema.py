@@ -162,8 +162,9 @@ def summary_problem(results: Any) -> str | None:
             return f"summary.{metric} is {claimed:.4g} but the file has no episode rows it comes from"
         values, counts = [], []
         for row in rows:
-            value, n = row.get(metric) if isinstance(row, dict) else None, row.get(count) if isinstance(row, dict) else None
-            if not (_is_type(n, "integer") and n >= 0) or not (value is None or _is_type(value, "number")):
+            value, n = (row.get(metric), row.get(count)) if isinstance(row, dict) else (None, None)
+            if not (isinstance(n, int) and _is_type(n, "integer") and n >= 0) or not (
+                    value is None or _is_type(value, "number")):
                 return f"episode rows hold no usable {metric} and {count} to check summary.{metric} against"
             values.append(math.nan if value is None else float(value))
             counts.append(float(n))

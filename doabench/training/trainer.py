@@ -123,6 +123,7 @@ class Trainer:
         if self.saved is not None:
             run_state.check_same_task(self.saved, self.spec, self.out)
         # What the run starts from: recorded in the checkpoint and in exported weights files.
+        self.initial_weights: dict[str, Any] | None
         if options.warm_start is not None:
             self.initial_weights = run_state.warm_start(self.saved, self.tracker, options.warm_start,
                                                         options.warm_start_options, self.out, log)
