@@ -74,6 +74,11 @@ fi
 # more run-state commits than a round allows, and the 16x32 moving run made most of its gain after
 # epoch 10 in the first epoch of its second phase (validation, voice-active: 13.32 -> 11.74 deg; its
 # last 59 epochs added 0.8 deg).
+# cross3d-32x64-moving-long: 32x64 maps on the paper's full schedule (80 epochs, switch at 20) on
+# sim-train-moving, warm-started from cross3d-16x32-moving-long's weights (its 1D layer widened,
+# docs/training.md "Warm starts"): its first four epochs were ahead of the 32x64 run from random
+# weights at every epoch (training-runs/cross3d-32x64-moving-long/card.md). Its compact state
+# (31 MB stored) is committed when training pauses, at most once per session.
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 float32 0 1"
     "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 float32 0 1"
@@ -87,6 +92,7 @@ QUEUE=(
     "cross3d:8x16 paper cross3d-8x16-moving cross3d-8x16-moving float32 0 1/2 --task sim-train-moving"
     "cross3d:32x64 paper cross3d-32x64-moving cross3d-32x64-moving float32 0 2 --task sim-train-moving --epochs 18 --switch-epoch 10"
     "cross3d:16x32 paper cross3d-16x32-moving-long cross3d-16x32-moving-long float32 0 1/2 --task sim-train-moving --tracker-opt weights=moving"
+    "cross3d:32x64 paper cross3d-32x64-moving-long cross3d-32x64-moving-long float32 0 2 --task sim-train-moving --warm-start cross3d:16x32 --warm-start-opt weights=moving-long"
 )
 
 native_bf16=""  # asked once, only when an entry's threads depend on it (QUEUE_NATIVE_BF16=0/1 overrides)
