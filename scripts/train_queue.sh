@@ -78,7 +78,7 @@ fi
 # sim-train-moving, warm-started from cross3d-16x32-moving-long's weights (its 1D layer widened,
 # docs/training.md "Warm starts"): its first four epochs were ahead of the 32x64 run from random
 # weights at every epoch (training-runs/cross3d-32x64-moving-long/card.md). Its compact state
-# (31 MB stored) is committed when training pauses, at most once per session.
+# (31 MB stored) is committed only when training pauses.
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 float32 0 1"
     "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 float32 0 1"

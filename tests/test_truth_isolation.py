@@ -25,7 +25,7 @@ RESOLUTION = (8, 16)
 EPISODES = 2
 ALLOWED_CONTEXT = {"frame_spec", "task"}
 RESET_INFO = {"episode", "n_frames", "frame_times"}
-STEP_INFO = {"frame", "truth", "vad", "error_rad", "time_s"}  # the frame just scored
+STEP_INFO = {"frame", "truth", "vad", "error_rad", "time_s", "no_source"}  # the frame just scored
 # Names under which an episode's truth or scene would be found.
 TRUTH_WORDS = {"metadata", "scene", "room", "dims", "t60", "snr", "snr_db", "seed", "speech", "trajectory",
                "trajectory_params", "position", "source_position", "truth", "direction", "directions", "doa",
