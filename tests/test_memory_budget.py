@@ -138,3 +138,16 @@ def test_the_engines_budgets_follow_their_image_counts() -> None:
     for dims, t60 in (((3.0, 3.0, 2.5), 0.9), ((6.0, 5.0, 3.0), 1.3), ((3.0, 4.0, 2.5), 5.0)):
         assert budget.pra_full_order(dims, t60) == pra.inverse_sabine(max_time(t60), list(dims), c=343.0)[1]
     assert [budget.octahedral_images(n) for n in (0, 1, 2)] == [1, 7, 25]
+
+
+def test_train_checks_the_memory_of_its_own_engine(tmp_path: Path, capsys) -> None:
+    """`train --backend pyroomacoustics-full` is checked against that engine's budget (its images to
+    the reflection order of T60 5 s), not the builtin engine's, before anything is written."""
+    pytest.importorskip("pyroomacoustics")
+    doabench.register_task({"id": "x-train-t60-5", "version": 1, "kind": "simulated", "episodes": 2, "base_seed": 3,
+                            "speech": {"corpus": "embedded"}, "scene": {"duration_s": 1.0, "n_points": 8, "t60": 5.0}})
+    argv = ["train", "--tracker", "cross3d:4x8", "--tracker-opt", "weights=random", "--task", "x-train-t60-5",
+            "--out", str(tmp_path / "run"), "--cache-root", str(tmp_path / "cache"), "--no-compile", "--quiet"]
+    assert main([*argv, "--backend", "pyroomacoustics-full"]) == 2
+    assert "pyroomacoustics-full's image sources" in _one_line(capsys)
+    assert list(tmp_path.iterdir()) == []

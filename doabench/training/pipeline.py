@@ -23,14 +23,15 @@ def scene_distribution(spec: TaskSpec, recipe: Recipe) -> SceneDistribution:
     return dist.replace(**changes)
 
 
-def check_memory(spec: TaskSpec, recipe: Recipe) -> None:
-    """Refuse training scenes whose simulation would need more memory than this machine has
-    (:func:`~doabench.acoustics.budget.check_fits`), before any cache or run folder is written."""
+def check_memory(spec: TaskSpec, recipe: Recipe, backend: str = "builtin") -> None:
+    """Refuse training scenes whose simulation on the engine ``backend`` would need more memory
+    than this machine has (:func:`~doabench.acoustics.budget.check_fits`), before any cache or run
+    folder is written."""
     from doabench.acoustics.budget import check_fits, scene_fields
     from doabench.arrays import get_array
 
     check_fits(scene_distribution(spec, recipe), get_array(spec.array).n_mics,
-               scene_fields(f"task {spec.id!r} training scene"))
+               scene_fields(f"task {spec.id!r} training scene"), backend)
 
 
 def speech_for_split(spec: TaskSpec, split: str, librispeech: str | None, fraction: float):
@@ -53,7 +54,7 @@ def ensure_cache(root: str | Path, spec: TaskSpec, recipe: Recipe, split: str, n
     from doabench.acoustics.simulators import get_simulator
     from doabench.arrays import get_array
 
-    check_memory(spec, recipe)
+    check_memory(spec, recipe, simulator)
     dist = scene_distribution(spec, recipe)
     speech = speech_for_split(spec, split, librispeech, recipe.val_speaker_fraction)
     array = get_array(spec.array)
