@@ -448,3 +448,21 @@ def test_a_summary_that_disagrees_with_its_episodes_is_refused_and_named(tmp_pat
                 str(folder / "sim-fan__srp-kalman_32x64.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "episode rows pool to" in err
+
+
+def test_an_interval_that_does_not_hold_its_value_is_refused_and_named(tmp_path: Path, capsys) -> None:
+    """A results file whose pooled value is true but whose interval was edited ("12.32 [0.10, 0.20]")
+    is named and left out, like an edited value."""
+    folder = tmp_path / "results"
+    folder.mkdir()
+    for name in ("sim-fan__cross3d_16x32.json", "sim-fan__srp-kalman_32x64.json"):
+        (folder / name).write_bytes((ROOT / "results" / name).read_bytes())
+    edited = json.loads((folder / "sim-fan__cross3d_16x32.json").read_text())
+    edited["summary"]["rmsae_all_ci95"] = [0.1, 0.2]
+    (folder / "sim-fan__cross3d_16x32.json").write_text(json.dumps(edited))
+    capsys.readouterr()
+    assert cli(["leaderboard", "--results", str(folder), "--out", str(tmp_path / "boards")]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "sim-fan__cross3d_16x32.json" in line]
+    assert len(lines) == 1 and "rmsae_all_ci95" in lines[0], err
+    assert "[0.10, 0.20]" not in (tmp_path / "boards" / "sim-fan.md").read_text()
