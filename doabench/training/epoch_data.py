@@ -108,7 +108,7 @@ class EpochData:
         self.base_seed = int(spec.base_seed) + int(recipe.seed)
         self._simulation: tuple[Any, Any, Any] | None = None
         if options.dataset is None:  # the scenes are simulated: refused here if they cannot fit
-            check_memory(spec, recipe, getattr(options, "simulator", "builtin"))
+            check_memory(spec, recipe, options.simulator)
 
     def data_device(self) -> torch.device:
         """Where simulation and features run: the training device when the training process does
