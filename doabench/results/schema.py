@@ -179,7 +179,7 @@ def summary_problem(results: Any) -> str | None:
         ci = summary.get(f"{metric}_ci95")
         if ci is not None and not math.isnan(claimed) and not (
                 isinstance(ci, list) and len(ci) == 2 and all(_is_type(v, "number") for v in ci)
-                and 0 <= ci[0] - SUMMARY_TOLERANCE <= claimed <= ci[1] + SUMMARY_TOLERANCE):
+                and ci[0] >= 0 and ci[0] - SUMMARY_TOLERANCE <= claimed <= ci[1] + SUMMARY_TOLERANCE):
             return (f"summary.{metric}_ci95 is {json.dumps(ci)}, which does not hold its pooled value "
                     f"{claimed:.4g}; the interval was not computed from the episodes")
     return None
