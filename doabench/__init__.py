@@ -10,6 +10,7 @@ Public API::
     doabench.srp_maps(audio, "nao")    # SRP-PHAT maps + grid angles + argmax directions in one call
     doabench.SRPPHAT("nao", (64, 128))  # the same maps as a transform built once (tables kept)
     doabench.hold_in_silences(directions, vad, hold)   # the learned trackers' hold rule in silences
+    doabench.SilenceHold(hold).step(direction, voiced)  # the same rule, frame by frame
     doabench.NO_SOURCE   # three NaNs: what step() returns (a row of track()) for a frame with no source
 
 What users implement or receive: ``Tracker`` (subclass it) and the ``ResetContext`` its
@@ -36,7 +37,7 @@ from doabench.errors import DoabenchError
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 from doabench.geometry import NO_SOURCE
-from doabench.trackers import Tracker, available_trackers, hold_in_silences, make_tracker, register_tracker
+from doabench.trackers import SilenceHold, Tracker, available_trackers, hold_in_silences, make_tracker, register_tracker
 from doabench.trackers.base import ResetContext
 
 if TYPE_CHECKING:
@@ -128,7 +129,7 @@ available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
     "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "NO_SOURCE", "ObservationPlan", "ObservationSpec",
-    "ResetContext", "SRPPHAT",
+    "ResetContext", "SRPPHAT", "SilenceHold",
     "TaskSpec", "Tracker", "TrainableTracker", "atomic_path", "available_tasks", "available_trackers", "get_array", "get_task_spec",
     "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",
     "srp_maps", "__version__",

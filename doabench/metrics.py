@@ -57,6 +57,7 @@ episode keeps the summed squared errors and frame counts per band, pooled exactl
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Sequence
 
@@ -227,14 +228,15 @@ def _nanmean(values: list[float]) -> float:
 
 
 def bootstrap_ci(per_frame: Sequence[tuple[np.ndarray, np.ndarray]], statistic: str = "rmsae_nonsilent",
-                 n_boot: int = 1000, level: float = 0.95, seed: int = 0) -> tuple[float, float]:
-    """Bootstrap confidence interval over episodes (resampled with replacement) of a pooled RMSAE.
+                 n_boot: int = 1000, level: float = 0.95, seed: int = 0) -> tuple[float, float] | None:
+    """Bootstrap confidence interval over episodes (resampled with replacement) of a pooled RMSAE,
+    or None where the episodes give none (:func:`defined_interval`).
 
     ``per_frame`` holds ``(errors_deg, vad)`` per episode; ``statistic`` is ``rmsae_all`` or
     ``rmsae_nonsilent``. Vectorised: per-episode sums of squares and counts are resampled.
     """
     if not per_frame:
-        return float("nan"), float("nan")
+        return None
     if statistic == "rmsae_all":
         sq = np.array([np.sum(np.square(e)) for e, _ in per_frame])
         n = np.array([e.size for e, _ in per_frame], float)
@@ -293,42 +295,71 @@ def _resampled_rms(counts: np.ndarray, sq: np.ndarray, n: np.ndarray) -> np.ndar
         return np.sqrt((counts @ sq) / (counts @ n))
 
 
+#: the fewest episodes with scored frames that give a results file (or a grid cell) an interval of
+#: its own: a resample of one episode is that episode every time, and two give three values, so
+#: fewer would claim a certainty (an interval of no or next to no width) the data do not have
+MIN_INTERVAL_EPISODES = 3
+#: relative width below which an interval counts as having none
+_NO_WIDTH = 1e-9
+
+
+def defined_interval(episode_rms: Sequence[float] | np.ndarray, episode_frames: Sequence[float] | np.ndarray,
+                     interval: Sequence[float] | None,
+                     min_episodes: int = MIN_INTERVAL_EPISODES) -> tuple[float, float] | None:
+    """``interval`` as ``(low, high)`` where the episodes back it, else None: None when it is
+    missing or not two finite numbers, when fewer than ``min_episodes`` episodes have scored frames
+    (``episode_frames`` > 0; an episode without frames adds nothing to a pooled RMS), or when it
+    has no width although those episodes' RMS values (``episode_rms``) differ (every resample gave
+    the same value, so the interval says nothing about the spread). Episodes that all score the
+    same keep their interval of no width: there is no spread to show.
+
+    The one rule for a single run's interval: :func:`bootstrap_ci_from_sums` applies it when a
+    results file is written, the views (:func:`doabench.results.intervals.shown_interval`) when
+    they print one, so a file written before the rule reads the same as one written since."""
+    if interval is None:
+        return None
+    try:
+        low, high = (float(v) for v in interval)
+    except (TypeError, ValueError):
+        return None
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return None
+    rms = np.asarray(episode_rms, np.float64).reshape(-1)
+    frames = np.asarray(episode_frames, np.float64).reshape(-1)
+    scored = rms[(frames > 0) & np.isfinite(rms)] if rms.shape == frames.shape else rms[:0]
+    if scored.size < min_episodes:
+        return None
+    no_width = high - low <= _NO_WIDTH * max(1.0, abs(high))
+    if no_width and not np.allclose(scored, scored[0], rtol=_NO_WIDTH, atol=0.0):
+        return None
+    return low, high
+
+
 def bootstrap_ci_from_sums(sum_sq: np.ndarray, counts: np.ndarray, n_boot: int = 1000, level: float = 0.95,
-                           seed: int = 0) -> tuple[float, float]:
+                           seed: int = 0) -> tuple[float, float] | None:
     """Bootstrap CI of a pooled RMS from per-episode sums of squared errors and frame counts
-    (episodes resampled with replacement, :func:`bootstrap_counts` with one stratum)."""
+    (episodes resampled with replacement, :func:`bootstrap_counts` with one stratum), or None where
+    the episodes give no interval (:func:`defined_interval`: fewer than
+    :data:`MIN_INTERVAL_EPISODES` with frames, or no spread between resamples of differing episodes)."""
     sq, n = np.asarray(sum_sq, float), np.asarray(counts, float)
     if sq.size == 0:
-        return float("nan"), float("nan")
+        return None
     values = _resampled_rms(bootstrap_counts([np.arange(sq.size)], sq.size, n_boot, seed), sq, n)
     if np.all(np.isnan(values)):
-        return float("nan"), float("nan")
+        return None
     lo, hi = np.nanpercentile(values, [(1 - level) / 2 * 100, (1 + level) / 2 * 100])
-    return float(lo), float(hi)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        episode_rms = np.sqrt(sq / n)
+    return defined_interval(episode_rms, n, (float(lo), float(hi)))
 
 
-def paired_difference_ci(sum_sq_a: np.ndarray, counts_a: np.ndarray, sum_sq_b: np.ndarray, counts_b: np.ndarray,
-                         n_boot: int = 1000, level: float = 0.95, seed: int = 0) -> tuple[float, float, float]:
-    """The difference of two trackers' pooled RMS errors on the same episodes, ``a - b``, and its
-    paired bootstrap interval: each resample draws the same episodes for both (shapes
-    ``(episodes,)``, episode ``i`` of ``a`` is episode ``i`` of ``b``), so what the two runs share
-    (a hard episode is hard for both) cancels, and the interval is narrower than the two
-    trackers' own intervals suggest. Returns ``(difference, low, high)``."""
-    sq_a, n_a, sq_b, n_b = (np.asarray(x, float) for x in (sum_sq_a, counts_a, sum_sq_b, counts_b))
-    if not (sq_a.shape == n_a.shape == sq_b.shape == n_b.shape) or sq_a.size == 0:
-        raise ValueError("paired_difference_ci needs the same, non-empty set of episodes for both trackers")
-    counts = bootstrap_counts([np.arange(sq_a.size)], sq_a.size, n_boot, seed)
-    diffs = _resampled_rms(counts, sq_a, n_a) - _resampled_rms(counts, sq_b, n_b)
-    lo, hi = np.nanpercentile(diffs, [(1 - level) / 2 * 100, (1 + level) / 2 * 100])
-    return float(np.sqrt(sq_a.sum() / n_a.sum()) - np.sqrt(sq_b.sum() / n_b.sum())), float(lo), float(hi)
-
-
-def pooled_from_rows(rows: Sequence[dict]) -> dict[str, float | tuple[float, float]]:
-    """Pooled RMSAEs (all / non-silent) and their bootstrap CIs from per-episode rows alone.
+def pooled_from_rows(rows: Sequence[dict]) -> dict[str, float | tuple[float, float] | None]:
+    """Pooled RMSAEs (all / non-silent) and their bootstrap CIs from per-episode rows alone (a CI
+    is None where the rows give none: :func:`bootstrap_ci_from_sums`).
 
     Exact: a pooled RMS is sqrt(sum_i n_i rms_i^2 / sum_i n_i) over episodes i.
     """
-    out: dict[str, float | tuple[float, float]] = {}
+    out: dict[str, float | tuple[float, float] | None] = {}
     for stat, count in (("rmsae_all", "n_frames"), ("rmsae_nonsilent", "n_nonsilent")):
         rms = np.array([r[stat] for r in rows], float)
         n = np.array([r[count] for r in rows], float)

@@ -117,26 +117,6 @@ def test_huge_or_tiny_direction_is_scored_as_the_direction_it_is(scale):
     torch.testing.assert_close(t, torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64))
 
 
-def test_paired_difference_ci_cancels_what_the_episodes_share() -> None:
-    """Two trackers on the same episodes: identical errors differ by exactly 0; a tracker whose
-    every episode is 10 % worse differs by 10 % of the pooled RMS, and pairing makes that
-    significant although the hard and easy episodes spread each tracker's own interval widely."""
-    from doabench.metrics import bootstrap_ci_from_sums, paired_difference_ci
-
-    rng = np.random.default_rng(1)
-    n = np.full(20, 103.0)
-    rms = rng.uniform(3.0, 30.0, 20)  # episodes of very different difficulty
-    sq = rms ** 2 * n
-    assert paired_difference_ci(sq, n, sq, n) == (0.0, 0.0, 0.0)
-    d, lo, hi = paired_difference_ci(sq * 1.21, n, sq, n)  # RMS x 1.1 in every episode
-    pooled = np.sqrt(sq.sum() / n.sum())
-    assert d == pytest.approx(0.1 * pooled) and 0 < lo <= d <= hi
-    own_lo, own_hi = bootstrap_ci_from_sums(sq, n)
-    assert hi - lo < 0.5 * (own_hi - own_lo)  # far narrower than either tracker's own interval
-    with pytest.raises(ValueError, match="same"):
-        paired_difference_ci(sq, n, sq[:5], n[:5])
-
-
 def test_one_bootstrap_serves_results_files_and_compare() -> None:
     """A results file's interval is the one-stratum case of compare's stratified bootstrap: the
     same draws, the same numbers; compare has no resampler of its own."""

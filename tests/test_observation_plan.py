@@ -16,9 +16,9 @@ from doabench.envs.env import DoaEnv
 from doabench.errors import ConfigError
 from doabench.features import FeatureExtractor, ObservationPlan, transforms
 from doabench.features.kinds import (
+    BUILTIN_KINDS,
     EXTRACTOR_KINDS,
     FRAMED_KINDS,
-    HALF_KINDS,
     OBSERVATION_KINDS,
     item_name,
     parse_item_name,
@@ -44,7 +44,7 @@ def test_one_kind_registry_everywhere():
     assert not hasattr(env_module, "FEATURE_KINDS") and not hasattr(transforms, "KINDS")
     assert not hasattr(schema, "KINDS") and not hasattr(schema, "HALF_KINDS")
     assert set(EXTRACTOR_KINDS) | set(FRAMED_KINDS) == set(OBSERVATION_KINDS)
-    assert HALF_KINDS == ("srp", "gcc", "spectrogram")
+    assert tuple(k.name for k in BUILTIN_KINDS if k.half) == ("srp", "gcc", "spectrogram")
     assert doabench.ObservationPlan is ObservationPlan
 
 

@@ -200,9 +200,6 @@ EXTRACTOR_KINDS = tuple(k.name for k in BUILTIN_KINDS if not k.framed)
 FRAMED_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.framed)
 #: Kinds computed on an SRP grid: their names carry the grid's resolution.
 MAP_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.on_grid)
-#: Maps that a dataset's ``--float16`` stores as half precision (srp_max and audio stay float32:
-#: srp_max holds two normalised angles, audio the recording itself).
-HALF_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.half)
 #: What ``make-dataset --features`` requests, in the files' canonical order; an ``srp`` request
 #: stores its ``srp_max`` too, so srp_max is not requested on its own.
 DATASET_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.requestable)

@@ -5,8 +5,8 @@
 """
 from doabench.geometry import parse_resolution, resolution_text
 from doabench.trackers.base import Tracker
-from doabench.trackers.hold import held_frame_index, hold_in_silences
+from doabench.trackers.hold import SilenceHold, held_frame_index, hold_in_silences
 from doabench.trackers.registry import available_trackers, make_tracker, register_tracker, resolve_tracker
 
-__all__ = ["Tracker", "available_trackers", "held_frame_index", "hold_in_silences", "make_tracker", "parse_resolution",
+__all__ = ["SilenceHold", "Tracker", "available_trackers", "held_frame_index", "hold_in_silences", "make_tracker", "parse_resolution",
            "register_tracker", "resolution_text", "resolve_tracker"]

@@ -5,8 +5,10 @@ of the talker and its output wanders. After ``hold`` consecutive voice-inactive 
 tracker reports its estimate of the frame before that silence became long until someone speaks
 again; before the first voice-active frame there is nothing to hold and the estimate is kept.
 
-Pure numpy functions, shared by the learned trackers (``baselines``) and the trainer's
-validation, which scores the weights the way the tracker will run them.
+The rule in one place, in both of its forms: :func:`held_frame_index` for a whole episode (the
+learned trackers' batch path and the trainer's validation, which scores the weights the way the
+tracker will run them) and :class:`SilenceHold` for a stream of frames (a tracker's ``step``),
+whose :meth:`~SilenceHold.episode` is :func:`hold_in_silences`.
 """
 from __future__ import annotations
 
@@ -37,3 +39,38 @@ def hold_in_silences(directions: np.ndarray, vad: np.ndarray, hold: int) -> np.n
     before the first voice-active one are left as they are. ``vad`` ``(frames,)`` bool."""
     held: np.ndarray = np.asarray(directions)[held_frame_index(vad, hold)]
     return held
+
+
+_NEVER_VOICED = 1 << 62  # silent-run count before the first voice-active frame
+
+
+class SilenceHold:
+    """The rule over a stream of directions ``(3,)``: :meth:`step` per frame, :meth:`episode` for a
+    whole episode at once (the same directions, :func:`hold_in_silences`)."""
+
+    def __init__(self, frames: int) -> None:
+        if int(frames) < 1:
+            raise ConfigError(f"hold must be >= 1 frame, got {frames!r}")
+        self.frames = int(frames)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new episode: no voice yet, nothing held."""
+        self._silent_run, self._held = _NEVER_VOICED, np.zeros(3)
+
+    def step(self, direction: np.ndarray, voiced: bool) -> np.ndarray:
+        """The direction to report for this frame, given the model's ``direction`` and the frame's VAD."""
+        if voiced:
+            self._silent_run = 0
+        elif self._silent_run < _NEVER_VOICED:
+            self._silent_run += 1
+        if self._silent_run >= _NEVER_VOICED:  # no voice yet: nothing to hold
+            return direction
+        if self._silent_run < self.frames:  # voice within the last `frames` frames
+            self._held = direction
+            return direction
+        return np.array(self._held, copy=True)
+
+    def episode(self, directions: np.ndarray, vad: np.ndarray) -> np.ndarray:
+        """``(frames, 3)`` directions of a whole episode, held as :meth:`step` holds them."""
+        return hold_in_silences(directions, np.asarray(vad, bool), self.frames)
