@@ -42,8 +42,8 @@ import time
 import numpy as np
 import torch
 
-from doabench.acoustics import rir as engine
 from doabench.acoustics import convolution
+from doabench.acoustics import rir as engine
 from doabench.acoustics.scenes import SceneDistribution, sample_scene
 from doabench.acoustics.simulators import get_simulator
 from doabench.errors import DependencyError
@@ -51,7 +51,7 @@ from doabench.provenance import cpu_name as _cpu_name
 
 STAGES = {  # stage -> (module, function name)
     "image sources": [(engine, "render_images")],
-    "tail": [(engine, "tail_level"), (engine, "shared_tail")],
+    "tail": [(engine, "tail_level"), (engine, "shared_tail")],  # the names the builtin engine calls
     "early conv": [(convolution, "convolve_trajectory")],
     "tail conv": [(convolution, "add_tail_convolution_")],
 }

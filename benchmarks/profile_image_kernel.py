@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from doabench.acoustics import rir as engine
+from doabench.acoustics import rir_model
 from doabench.acoustics.scenes import SceneDistribution, sample_scene
 from doabench.arrays import get_array
 from doabench.geometry import SPEED_OF_SOUND
@@ -28,8 +29,8 @@ def main() -> int:
     scene = sample_scene(SceneDistribution(p_static=0.0), 1001, None, array)
     src = torch.tensor(np.asarray(scene.trajectory))
     mics = torch.tensor(np.asarray(array.positions) + np.asarray(scene.array_position))
-    layout, _ = engine.plan(scene.room, src, mics, FS)
-    images = engine.enumerate_images(scene.room, (layout.n_early + engine.SINC_HALF) / FS * SPEED_OF_SOUND)
+    layout, _ = rir_model.plan(scene.room, src, mics, FS)
+    images = rir_model.enumerate_images(scene.room, (layout.n_early + rir_model.SINC_HALF) / FS * SPEED_OF_SOUND)
     dims = "x".join(f"{d:.1f}" for d in scene.room.dims)
     print(f"room {dims} m, T60 {scene.room.t60:.2f} s, {len(images)} images, {len(src)} points, "
           f"rows of {layout.n_early} samples, kernel {engine.image_kernel('cpu')}")

@@ -99,7 +99,7 @@ def __getattr__(name: str) -> Any:
         globals()[name] = TrainableTracker
         return TrainableTracker
     if name == "single_threaded":
-        from doabench.acoustics.rir import single_threaded
+        from doabench.acoustics.compute import single_threaded
 
         globals()[name] = single_threaded
         return single_threaded

@@ -14,7 +14,9 @@ import pytest
 import torch
 
 from doabench.acoustics import native
+from doabench.acoustics import compute
 from doabench.acoustics import rir as engine
+from doabench.acoustics import rir_model
 from doabench.acoustics.room import Room
 from doabench.acoustics.simulators import get_simulator
 from doabench.geometry import SPEED_OF_SOUND
@@ -63,8 +65,8 @@ def _reference(images, src, mics, n_out, exact: bool = False):
             arrival = d * FS / SPEED_OF_SOUND if exact else np.floor(d32 * scale + f32(0.5)).astype(np.float64) / over
             w = images.gain / (4 * math.pi * d)
             for wk, tk in zip(w, arrival):
-                lo = int(np.floor(tk)) - engine.SINC_HALF - 1
-                sl = slice(max(lo, 0), max(min(lo + 2 * engine.SINC_HALF + 4, n_out), 0))
+                lo = int(np.floor(tk)) - rir_model.SINC_HALF - 1
+                sl = slice(max(lo, 0), max(min(lo + 2 * rir_model.SINC_HALF + 4, n_out), 0))
                 out[p, m, sl] += wk * engine.windowed_sinc(s[sl] - tk)
     return out
 
@@ -78,7 +80,7 @@ def test_kernel_builds_here():
 @needs_kernel
 def test_kernel_matches_a_float64_evaluation_and_the_torch_path():
     room, src, mics = _scene(t60=0.3, n_points=2)
-    images = engine.enumerate_images(room, 12.0)
+    images = rir_model.enumerate_images(room, 12.0)
     n_out = int(12.0 / SPEED_OF_SOUND * FS) - 40
     ref = _reference(images, src, mics, n_out)
     c = _render(images, src, mics, n_out, use_kernel=True).numpy()
@@ -97,7 +99,7 @@ def test_kernel_matches_a_float64_evaluation_and_the_torch_path():
 @needs_kernel
 def test_kernel_is_bitwise_reproducible_and_leaves_padding_alone():
     room, src, mics = _scene()
-    images = engine.enumerate_images(room, 20.0)
+    images = rir_model.enumerate_images(room, 20.0)
     n_out = 700
     a = torch.full((len(src), len(mics), n_out + 13), 7.0)
     b = torch.full((len(src), len(mics), n_out + 13), 7.0)
@@ -257,7 +259,7 @@ def test_a_cache_others_could_write_is_not_trusted(monkeypatch, tmp_path, reload
 def test_largest_tap_errors_of_the_two_approximations():
     """docs/simulation.md quotes them: nearest of 128 phases (the kernel) 5.3e-3, linear between
     8 phases (the torch path) 6.4e-3 of the peak tap, against the windowed sinc at the exact time."""
-    half = engine.SINC_HALF
+    half = rir_model.SINC_HALF
     frac = np.linspace(0.0, 1.0, 4001)[:-1]
     n = np.arange(2 * half)[None, :] - (half - 1)
     exact = engine.windowed_sinc(n - frac[:, None])
@@ -279,13 +281,13 @@ def test_accelerator_work_sizes_give_the_same_simulation(monkeypatch):
     accelerator's sizes, run here on the CPU, must equal the CPU-sized one to rounding."""
     from doabench.acoustics import convolution
 
-    assert engine.work_elements(torch.device("cpu"), 1, 2) == 1
-    assert engine.work_elements(torch.device("cuda"), 1, 2) == 2  # a device object needs no GPU
+    assert compute.work_elements(torch.device("cpu"), 1, 2) == 1
+    assert compute.work_elements(torch.device("cuda"), 1, 2) == 2  # a device object needs no GPU
     room, src, mics = _scene(t60=0.6, n_points=120)
     x = np.random.default_rng(1).standard_normal(48000)
     # with the CPU's sizes the early convolution runs in several chunks of points, with the
     # accelerator's in one
-    layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mics), FS)
+    layout, _ = rir_model.plan(room, torch.tensor(src), torch.tensor(mics), FS)
     row = len(mics) * convolution.trajectory_fft_size(len(x), len(src), layout.n_early)
     assert convolution._OLA_CHUNK_ELEMENTS // row < len(src) <= convolution._OLA_CHUNK_ELEMENTS_CUDA // row
     sim = get_simulator("builtin")

@@ -9,7 +9,9 @@ import pytest
 import torch
 from scipy.signal import fftconvolve
 
+from doabench.acoustics import compute
 from doabench.acoustics import rir as engine
+from doabench.acoustics import rir_model
 from doabench.acoustics.room import SABINE_CONSTANT, Room, check_inside
 from doabench.acoustics.backends.base import direct_path
 from doabench.acoustics.convolution import convolve_trajectory
@@ -113,7 +115,7 @@ def test_builtin_matches_pyroomacoustics():
     assert np.linalg.norm(early_b - early_p) / np.linalg.norm(early_p) <= 0.10
 
     # Direct path and first-order reflections: arrival sample and amplitude.
-    images = engine.enumerate_images(room, 30.0)
+    images = rir_model.enumerate_images(room, 30.0)
     checked = 0
     for m in range(2):
         pos = images.offset + images.sign * src[0]
@@ -150,7 +152,7 @@ def test_anechoic_is_only_the_direct_path(builtin):
         d = np.linalg.norm(src[s] - mics[0])
         tau = d / SPEED_OF_SOUND * FS
         n = np.arange(h.shape[-1])
-        outside = np.abs(n - tau) >= engine.SINC_HALF + 1 / engine.KERNEL_PHASES  # arrival rounded to 1/128
+        outside = np.abs(n - tau) >= rir_model.SINC_HALF + 1 / engine.KERNEL_PHASES  # arrival rounded to 1/128
         assert np.all(h[s, 0, outside] == 0)
         expected = engine.windowed_sinc(n - tau) / (4 * math.pi * d)
         assert np.max(np.abs(h[s, 0] - expected)) <= 0.01 * np.max(np.abs(expected))
@@ -165,13 +167,13 @@ def test_seeds_fix_the_tail_and_mics_get_independent_tails(builtin):
     assert np.array_equal(a, builtin.rirs(room, src, mics, FS, seed=torch.Generator().manual_seed(7)))
     b = builtin.rirs(room, src, mics, FS, seed=8)
     n_diff = round(room.diffuse_start() * FS)
-    assert np.array_equal(a[..., : n_diff - engine.SINC_HALF - 1], b[..., : n_diff - engine.SINC_HALF - 1])
+    assert np.array_equal(a[..., : n_diff - rir_model.SINC_HALF - 1], b[..., : n_diff - rir_model.SINC_HALF - 1])
     tail_a, tail_b = a[0, :, n_diff + 200 :], b[0, :, n_diff + 200 :]
     assert not np.allclose(tail_a, tail_b)
     corr = np.corrcoef(tail_a)[0, 1]  # diffuse field: independent noise per microphone
     assert abs(corr) < 0.1
     # the tail continues the early part's energy envelope
-    k = engine.decay_rate(room.t60) / FS
+    k = rir_model.decay_rate(room.t60) / FS
     w = slice(n_diff // 2, n_diff)
     t_early = np.arange(n_diff)[w]
     early_level = np.mean(a[0, :, w] ** 2 * np.exp(k * t_early))
@@ -294,7 +296,7 @@ def _moving_scene(t60=0.6, n_points=12):
 
 
 def _parts(room, src, mics, seed):
-    gen = engine.make_generator(seed)
+    gen = compute.make_generator(seed)
     return engine.image_source_parts(room, torch.tensor(src), torch.tensor(mics), FS, gen)
 
 
@@ -317,7 +319,7 @@ def test_shared_tail_continues_the_early_energy_within_1_db(builtin):
     room, src, mics = _moving_scene(0.6)
     h = builtin.rirs(room, src, mics, FS, seed=5).astype(np.float64)
     n_diff = round(room.diffuse_start() * FS)
-    k = engine.decay_rate(room.t60) / FS
+    k = rir_model.decay_rate(room.t60) / FS
     w = n_diff // 2
     before = np.arange(n_diff - w, n_diff)
     after = np.arange(n_diff, n_diff + w)
@@ -332,8 +334,8 @@ def test_shared_tail_continues_the_early_energy_within_1_db(builtin):
 def test_early_part_and_direct_path_are_the_per_point_engines(builtin):
     room, src, mics = _moving_scene(0.5, n_points=5)
     h = builtin.rirs(room, src, mics, FS, seed=2)
-    layout, delays = engine.plan(room, torch.tensor(src), torch.tensor(mics), FS)
-    images = engine.enumerate_images(room, (layout.n_early + engine.SINC_HALF) / FS * SPEED_OF_SOUND)
+    layout, delays = rir_model.plan(room, torch.tensor(src), torch.tensor(mics), FS)
+    images = rir_model.enumerate_images(room, (layout.n_early + rir_model.SINC_HALF) / FS * SPEED_OF_SOUND)
     for s in range(len(src)):  # one point at a time, as a per-point engine renders it
         early = engine.render_images(images, torch.tensor(src[s : s + 1]), torch.tensor(mics), FS, layout.n_early)
         assert np.allclose(h[s, :, : layout.n_diff], early[0, :, : layout.n_diff].numpy(),

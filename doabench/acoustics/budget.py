@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping
 
-from doabench.acoustics.rir import SINC_HALF
+from doabench.acoustics.rir_model import SINC_HALF
 from doabench.acoustics.room import diffuse_start, max_time
 from doabench.errors import ConfigError
 from doabench.geometry import SPEED_OF_SOUND
@@ -91,7 +91,7 @@ class SimulationCost:
 
 
 def image_candidates(dims: tuple[float, float, float], horizon_m: float) -> float:
-    """Images :func:`~doabench.acoustics.rir.enumerate_images` considers for a ``horizon_m``
+    """Images :func:`~doabench.acoustics.rir_model.enumerate_images` considers for a ``horizon_m``
     reach in a room of ``dims`` metres: per axis ``2 (2 n + 1)`` with ``n = ceil(horizon / 2L) + 1``
     (bounded above here without the ceiling, which overflows on absurd inputs)."""
     return math.prod(2.0 * (2.0 * (horizon_m / (2.0 * length) + 2.0) + 1.0) for length in dims)

@@ -4,7 +4,7 @@ A moving source is simulated the way gpuRIR's ``simulateTrajectory`` does: the s
 ``S`` consecutive segments (:func:`doabench.acoustics.trajectories.segment_bounds`), segment ``i``
 is convolved with the RIRs of trajectory point ``i`` and the results are overlap-added
 (:func:`convolve_trajectory`); with RIRs given as early parts plus one shared diffuse tail
-(:class:`~doabench.acoustics.rir.RirParts`) the tail is convolved once with the whole signal
+(:class:`~doabench.acoustics.rir_model.RirParts`) the tail is convolved once with the whole signal
 (:func:`convolve_parts`).
 """
 from __future__ import annotations
@@ -17,14 +17,15 @@ import torch
 from scipy import fft as scipy_fft
 from scipy.fft import next_fast_len
 
-from doabench.acoustics import rir as engine
+from doabench.acoustics import compute
+from doabench.acoustics import rir_model
 from doabench.acoustics.trajectories import segment_bounds
 
 # Spectra held at once by the FFT convolutions, (points, mics, nfft) or (mics, blocks, nfft): about
 # 2 MB, so each chunk's transform, product and overlap-add stay in the L2 cache (8M-element
 # chunks were about a third slower for the early part; docs/performance.md, "early conv").
 _OLA_CHUNK_ELEMENTS = 500_000
-_OLA_CHUNK_ELEMENTS_CUDA = 1 << 26  # on CUDA: fewer, larger transforms (engine.work_elements)
+_OLA_CHUNK_ELEMENTS_CUDA = 1 << 26  # on CUDA: fewer, larger transforms (compute.work_elements)
 
 
 @functools.lru_cache(maxsize=None)
@@ -100,7 +101,7 @@ def convolve_trajectory(rirs: torch.Tensor, signal: torch.Tensor, n_taps: int | 
     )  # (S, frame): segment i at offset shift[i]
     n_hops = -(-nfft // hop)  # output hops one frame touches
     out = torch.zeros(M, S + n_hops, hop, dtype=torch.float32, device=device)
-    step = max(1, engine.work_elements(device, _OLA_CHUNK_ELEMENTS, _OLA_CHUNK_ELEMENTS_CUDA) // (M * nfft))
+    step = max(1, compute.work_elements(device, _OLA_CHUNK_ELEMENTS, _OLA_CHUNK_ELEMENTS_CUDA) // (M * nfft))
     for p0 in range(0, S, step):
         p1 = min(S, p0 + step)
         h = rirs[p0:p1] if width == nfft else rirs[p0:p1, :, :N]
@@ -127,7 +128,7 @@ def add_tail_convolution_(out: torch.Tensor, signal: torch.Tensor, tail: torch.T
     """``out[m, start + k] += (signal * tail[m])[k]`` for ``k < L - start``; returns ``out``.
 
     ``out`` ``(M, L)``, ``signal`` ``(L,)``, ``tail`` ``(M, N)`` float32 (the shared diffuse tail
-    of :class:`~doabench.acoustics.rir.RirParts`, which starts at sample ``start``). Since the
+    of :class:`~doabench.acoustics.rir_model.RirParts`, which starts at sample ``start``). Since the
     tail is the same for every trajectory point, the sum over segments of ``segment * tail`` is
     ``signal * tail``: one convolution of the whole signal per microphone, done as a blocked
     overlap-add (:func:`tail_block_size`) whose block spectra of the signal are shared by every
@@ -148,7 +149,7 @@ def add_tail_convolution_(out: torch.Tensor, signal: torch.Tensor, tail: torch.T
     spec_h = _rfft(tail.to(torch.float32), nfft)  # (M, nfft // 2 + 1)
     n_hops = -(-nfft // block)  # blocks one block's output touches
     acc = torch.zeros(M, n_blocks + n_hops, block, dtype=torch.float32, device=device)
-    step = max(1, engine.work_elements(device, _OLA_CHUNK_ELEMENTS, _OLA_CHUNK_ELEMENTS_CUDA) // (n_blocks * nfft))
+    step = max(1, compute.work_elements(device, _OLA_CHUNK_ELEMENTS, _OLA_CHUNK_ELEMENTS_CUDA) // (n_blocks * nfft))
     for m0 in range(0, M, step):
         m1 = min(M, m0 + step)
         y = _irfft(spec_x[None] * spec_h[m0:m1, None], nfft)  # (mics, blocks, nfft)
@@ -159,7 +160,7 @@ def add_tail_convolution_(out: torch.Tensor, signal: torch.Tensor, tail: torch.T
     return out
 
 
-def convolve_parts(parts: engine.RirParts, signal: torch.Tensor) -> torch.Tensor:
+def convolve_parts(parts: rir_model.RirParts, signal: torch.Tensor) -> torch.Tensor:
     """Moving-source convolution ``(M, L)`` float32 with RIRs given as early parts plus a shared
     tail: :func:`convolve_trajectory` of the early parts (short FFTs, ~Tdiff fs) plus one long
     convolution of the whole signal with the tail (:func:`add_tail_convolution_`). Equals

@@ -21,7 +21,7 @@ from typing import Callable
 
 import torch
 
-from doabench.acoustics import rir as engine
+from doabench.acoustics import compute
 from doabench.acoustics.backends.base import Simulator
 from doabench.errors import ConfigError, DependencyError
 from doabench.plugins import Registry
@@ -50,7 +50,7 @@ def get_simulator(name: str = "builtin", device: str | torch.device | None = Non
     ``pyroomacoustics``, ``gpurir`` (DependencyError when gpuRIR is not importable) or a plug-in's."""
     factory = SIMULATORS.get(str(name))
     try:
-        dev = engine.resolve_device(device)
+        dev = compute.resolve_device(device)
     except (RuntimeError, TypeError):
         raise ConfigError(f"unknown torch device {device!r}") from None
     if dev.type == "cuda" and not torch.cuda.is_available():

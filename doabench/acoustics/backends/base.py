@@ -14,7 +14,9 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import torch
 
+from doabench.acoustics import compute
 from doabench.acoustics import rir as engine
+from doabench.acoustics import rir_model
 from doabench.acoustics.convolution import convolve_parts, convolve_trajectory, trajectory_fft_size
 from doabench.acoustics.room import Room, check_inside
 from doabench.errors import ConfigError, InputError
@@ -118,7 +120,7 @@ def direct_path(
     SNR relative to the direct-path power without a second simulation."""
     src, mic, fs = prepare_geometry(room, sources, mics, fs)
     x = _signal(signal)
-    dev = engine.resolve_device(device)
+    dev = compute.resolve_device(device)
     with _threads(dev):
         h = engine.direct_rirs(torch.tensor(src, device=dev), torch.tensor(mic, device=dev), fs)
         return convolve_trajectory(h, torch.as_tensor(x, device=dev)).cpu().numpy()
@@ -131,12 +133,12 @@ def _threads(device: torch.device):
     and on a loaded one the thread-pool hand-offs made it 5-20x slower. To use more cores,
     simulate several trajectories in parallel processes (e.g. data-loader workers).
     """
-    return engine.single_threaded() if device.type == "cpu" else contextlib.nullcontext()
+    return compute.single_threaded() if device.type == "cpu" else contextlib.nullcontext()
 
 
 class TorchBackend:
     """Shared ``rirs``/``simulate`` plumbing. Subclasses implement ``rirs_parts`` (early parts
-    plus a shared tail, :class:`~doabench.acoustics.rir.RirParts`; the fast path) or only
+    plus a shared tail, :class:`~doabench.acoustics.rir_model.RirParts`; the fast path) or only
     ``rirs_tensor`` (complete RIRs, convolved per trajectory point)."""
 
     name = "?"
@@ -144,7 +146,7 @@ class TorchBackend:
 
     def rirs_parts(
         self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator, width: int | None = None
-    ) -> engine.RirParts | None:
+    ) -> rir_model.RirParts | None:
         return None
 
     def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
@@ -157,7 +159,7 @@ class TorchBackend:
         """RIRs ``(S, M, n_taps)`` float32, ``n_taps = round(Tmax fs)`` (direct path only when
         T60 = 0). ``seed`` (int or torch.Generator) fixes the diffuse-tail noise."""
         src, mic, fs = prepare_geometry(room, sources, mics, fs)
-        gen = engine.make_generator(seed)
+        gen = compute.make_generator(seed)
         with _threads(self.device):
             return self.rirs_tensor(room, src, mic, fs, gen).cpu().numpy()
 
@@ -167,10 +169,10 @@ class TorchBackend:
         rounding where the backend has a shared tail)."""
         src, mic, fs = prepare_geometry(room, sources, mics, fs)
         x = _signal(signal)
-        gen = engine.make_generator(seed)
+        gen = compute.make_generator(seed)
         xt = torch.as_tensor(x, device=self.device)
         with _threads(self.device):
-            layout, _ = engine.plan(room, torch.tensor(src), torch.tensor(mic), fs)
+            layout, _ = rir_model.plan(room, torch.tensor(src), torch.tensor(mic), fs)
             nfft = trajectory_fft_size(len(x), len(src), layout.n_early)
             parts = self.rirs_parts(room, src, mic, fs, gen, width=nfft)  # zero-padded: no copy in the FFT
             if parts is not None:

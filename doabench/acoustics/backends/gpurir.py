@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from doabench.acoustics import rir as engine
+from doabench.acoustics import compute
+from doabench.acoustics import rir_model
 from doabench.acoustics.backends.base import TorchBackend
 from doabench.acoustics.room import Room
 from doabench.errors import ConfigError, DependencyError
@@ -30,7 +31,7 @@ class GpuRIRSimulator(TorchBackend):
         except ImportError:
             raise DependencyError(GPURIR_INSTALL) from None
         self._gpurir = gpuRIR
-        self.device = engine.resolve_device(device)
+        self.device = compute.resolve_device(device)
 
     def versions(self) -> dict[str, str]:
         return {
@@ -48,9 +49,9 @@ class GpuRIRSimulator(TorchBackend):
         if room.t60 == 0:
             beta = np.zeros(6)
             n_img = [1, 1, 1]
-            delays = engine.direct_delays(torch.as_tensor(sources), torch.as_tensor(mics), fs)
+            delays = rir_model.direct_delays(torch.as_tensor(sources), torch.as_tensor(mics), fs)
             t_diff = None
-            t_max = engine.rir_layout(None, float(delays.max()), fs).n_taps / fs
+            t_max = rir_model.rir_layout(None, float(delays.max()), fs).n_taps / fs
         else:
             beta = g.beta_SabineEstimation(dims, room.t60, np.asarray(room.abs_weights))
             t_diff = g.att2t_SabineEstimator(12, room.t60)

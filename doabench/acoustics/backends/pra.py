@@ -9,7 +9,8 @@ import math
 import numpy as np
 import torch
 
-from doabench.acoustics import rir as engine
+from doabench.acoustics import compute
+from doabench.acoustics import rir_model
 from doabench.acoustics.backends.base import TorchBackend
 from doabench.acoustics.room import Room
 from doabench.errors import DependencyError
@@ -26,7 +27,7 @@ class PyroomacousticsSimulator(TorchBackend):
     ray tracing, no randomised ISM; ``max_order`` = the highest reflection order among the images
     that reach Tdiff. Its RIRs are shifted back by its ``frac_delay_length // 2`` global delay and
     scaled by ``1 / (4 pi)`` (pyroomacoustics uses ``1 / r``), cut at Tdiff, and the builtin's
-    shared diffuse tail (:func:`doabench.acoustics.rir.shared_tail`, fitted to these early parts)
+    shared diffuse tail (:func:`doabench.acoustics.rir_model.shared_tail`, fitted to these early parts)
     is added from there, so builtin and pyroomacoustics differ only in their image sources.
     """
 
@@ -36,13 +37,13 @@ class PyroomacousticsSimulator(TorchBackend):
     def __init__(self, device: str | torch.device | None = None) -> None:
         if importlib.util.find_spec("pyroomacoustics") is None:
             raise DependencyError("pyroomacoustics is not installed: pip install pyroomacoustics==0.10.1")
-        self.device = engine.resolve_device(device)
+        self.device = compute.resolve_device(device)
 
     def settings(self) -> dict:
         from doabench.geometry import SPEED_OF_SOUND
 
         return {
-            "frac_delay_length": 2 * engine.SINC_HALF + 1,
+            "frac_delay_length": 2 * rir_model.SINC_HALF + 1,
             "sinc_lut_granularity": 20,
             "rir_hpf_enable": False,
             "c": SPEED_OF_SOUND,
@@ -52,7 +53,7 @@ class PyroomacousticsSimulator(TorchBackend):
         import pyroomacoustics as pra
 
         out = {"backend": self.name, "pyroomacoustics": pra.__version__, "torch": torch.__version__,
-               "tail": engine.TAIL_MODEL}
+               "tail": rir_model.TAIL_MODEL}
         out.update({k: str(v) for k, v in self.settings().items()})
         return out
 
@@ -69,14 +70,14 @@ class PyroomacousticsSimulator(TorchBackend):
             for k, v in old.items():
                 pra.constants.set(k, v)
 
-    def max_order(self, room: Room, layout: engine.RirLayout, fs: int) -> int:
+    def max_order(self, room: Room, layout: rir_model.RirLayout, fs: int) -> int:
         """Reflection order that includes every image arriving before the end of the ISM part."""
         if room.t60 == 0:
             return 0
         from doabench.geometry import SPEED_OF_SOUND
 
-        horizon = (layout.n_early + engine.SINC_HALF) / fs * SPEED_OF_SOUND
-        return int(engine.enumerate_images(room, horizon).order.max())
+        horizon = (layout.n_early + rir_model.SINC_HALF) / fs * SPEED_OF_SOUND
+        return int(rir_model.enumerate_images(room, horizon).order.max())
 
     def early_part(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, layout) -> np.ndarray:
         """pyroomacoustics' image-source responses ``(S, M, n_early)`` float32 (our conventions)."""
@@ -114,15 +115,15 @@ class PyroomacousticsSimulator(TorchBackend):
 
     def rirs_parts(
         self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator, width: int | None = None
-    ) -> engine.RirParts | None:
+    ) -> rir_model.RirParts | None:
         src = torch.tensor(sources, device=self.device)
         mic = torch.tensor(mics, device=self.device)
-        delays = engine.direct_delays(src, mic, fs)
-        layout = engine.rir_layout(room, float(delays.max()), fs)
+        delays = rir_model.direct_delays(src, mic, fs)
+        layout = rir_model.rir_layout(room, float(delays.max()), fs)
         width = layout.n_early if width is None else max(int(width), layout.n_early)
         early = torch.zeros(len(sources), mics.shape[-2], width, dtype=torch.float32, device=self.device)
         early[..., : layout.n_early] = torch.as_tensor(self.early_part(room, sources, mics, fs, layout), device=self.device)
         levels = None
         if room.t60 > 0 and layout.n_taps > layout.n_diff:
-            levels = engine.tail_level(early[..., : layout.n_early], room, fs, layout, delays)
-        return engine.RirParts(early, engine.shared_tail(levels, room, fs, layout, generator), layout)
+            levels = rir_model.tail_level(early[..., : layout.n_early], room, fs, layout, delays)
+        return rir_model.RirParts(early, rir_model.shared_tail(levels, room, fs, layout, generator), layout)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from doabench.acoustics import rir as engine
+from doabench.acoustics import rir_model
 from doabench.acoustics.backends.pra import PyroomacousticsSimulator
 from doabench.acoustics.room import Room
 from doabench.geometry import SPEED_OF_SOUND
@@ -78,12 +78,12 @@ class PyroomacousticsFullSimulator(PyroomacousticsSimulator):
 
     def rirs_parts(
         self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator, width: int | None = None
-    ) -> engine.RirParts | None:
+    ) -> rir_model.RirParts | None:
         return None  # complete RIRs only: there is no shared tail to convolve apart
 
     def rirs_tensor(self, room: Room, sources: np.ndarray, mics: np.ndarray, fs: int, generator) -> torch.Tensor:
         """RIRs ``(S, M, n_taps)`` float32 on the backend's device, ``n_taps = round(Tmax fs)``
         (longer only when a direct path arrives late)."""
-        layout, _ = engine.plan(room, torch.tensor(sources), torch.tensor(mics), fs)
+        layout, _ = rir_model.plan(room, torch.tensor(sources), torch.tensor(mics), fs)
         h = self.render(room, sources, mics, fs, layout.n_taps, self.image_order(room))
         return torch.as_tensor(h, device=self.device)

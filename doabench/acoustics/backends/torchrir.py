@@ -42,7 +42,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from doabench.acoustics import rir as engine
+from doabench.acoustics import compute
+from doabench.acoustics import rir_model
 from doabench.acoustics.backends.base import TorchBackend
 from doabench.acoustics.room import DIFFUSE_START_DB, MAX_TIME_DB, Room
 from doabench.errors import ConfigError, DependencyError
@@ -98,7 +99,7 @@ class TorchrirSimulator(TorchBackend):
         except ImportError:
             raise DependencyError(TORCHRIR_INSTALL) from None
         self._torchrir = torchrir
-        self.device = engine.resolve_device(device)
+        self.device = compute.resolve_device(device)
         if self.device.type == "cpu":
             _raise_malloc_threshold()
 
@@ -165,7 +166,7 @@ class TorchrirSimulator(TorchBackend):
 
         dev = self.device
         S, M = len(sources), mics.shape[-2]
-        delays = engine.direct_delays(torch.tensor(sources), torch.tensor(mics), fs)
+        delays = rir_model.direct_delays(torch.tensor(sources), torch.tensor(mics), fs)
         n_diff, n_taps = self._lengths(room, float(delays.max()), fs)
         # One integer seed per call, drawn from the caller's generator: the same seed gives the same
         # tail noise (torchrir derives each microphone's carrier from it).
@@ -179,7 +180,7 @@ class TorchrirSimulator(TorchBackend):
             counts = estimate_image_counts_from_tmax(n_diff / fs, torch.tensor(room.dims), c=SPEED_OF_SOUND)
             limits = {"nb_img": tuple(int(v) for v in counts), "tdiff": (n_diff - 0.5) / fs, "seed": seed}
         per_call = min(S, _POINTS_PER_CALL if dev.type == "cpu" else _POINTS_PER_CALL_CUDA)
-        budget = engine.work_elements(dev, _CHUNK_ELEMENTS, _CHUNK_ELEMENTS_CUDA)
+        budget = compute.work_elements(dev, _CHUNK_ELEMENTS, _CHUNK_ELEMENTS_CUDA)
         image_chunk = int(min(2048, max(16, budget // (per_call * M * FRAC_DELAY_LENGTH))))
         config = SimulationConfig(
             **limits, nsample=n_taps, device=dev, dtype=dtype, frac_delay_length=FRAC_DELAY_LENGTH,
