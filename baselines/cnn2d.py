@@ -59,6 +59,21 @@ class SpecCnn2d(StreamingMixin, nn.Module):
         self.act_hidden = nn.PReLU()  # one shared slope, as in Cross3D
         self.output = CausalConv(nn.Conv1d(HIDDEN, 3, KERNEL, dilation=2))
         self.n_states = number_causal_convs(self)
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """He initialisation for PReLU's starting slope (0.25) of every convolution, zero biases.
+
+        Why not PyTorch's default: with it the output's spread shrinks about 0.6x per layer (0.007
+        at the output), and a fixed batch of anechoic trajectories fits slower (loss 0.182 after 60
+        Adam steps at lr 1e-4, against 0.130 with this; docs/training.md, "The spectrogram models:
+        what was measured")."""
+        with torch.no_grad():
+            for m in self.modules():
+                if isinstance(m, (nn.Conv1d, nn.Conv2d)):
+                    nn.init.kaiming_normal_(m.weight, a=0.25, nonlinearity="leaky_relu")
+                    if m.bias is not None:
+                        m.bias.zero_()
 
     @property
     def receptive_field(self) -> int:

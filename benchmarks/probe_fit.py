@@ -6,7 +6,8 @@
 * otherwise: 20 such trajectories, the same ones every epoch, N epochs of 4 batches; prints the
   training loss and the validation RMSAE (10 other trajectories) per epoch.
 
-Each with the model's own initialisation (``default``) or Kaiming's for its (P)ReLUs (``kaiming``)::
+Each with the model's own initialisation (``default``; spec-cnn2d's own is Kaiming's since it measured
+better here) or Kaiming's for its (P)ReLUs (``kaiming``)::
 
     .venv/bin/python benchmarks/probe_fit.py seldnet default 1e-3 60 --batch --librispeech PATH
     .venv/bin/python benchmarks/probe_fit.py spec-cnn2d kaiming 1e-4 30 --librispeech PATH
