@@ -12,9 +12,11 @@ The catalog is ``baselines/weights/catalog.json``::
 ``tracker`` is the canonical id the file's weights run as; ``name`` is what ``--tracker-opt
 weights=NAME`` types. ``defaults`` holds, per canonical id, the name used without a weights option,
 and per tracker whose id names a map resolution (``cross3d``) the canonical id that the bare name
-runs as. ``headline`` and ``defaults`` are written by ``scripts/weights_catalog.py`` from the
-committed results; names, files and runs are written by hand when a file ships. A file's SHA-256 is
-the one the manifest (``SHA256SUMS``) records, which loading checks.
+runs as. ``headline`` (where a task's ``lag_s`` is null, its ``lag_note`` says why: the run's own
+note, or that the run predates the lag measurement) and ``defaults`` are written by
+``scripts/weights_catalog.py`` from the committed results; names, files and runs are written by
+hand when a file ships. A file's SHA-256 is the one the manifest (``SHA256SUMS``) records, which
+loading checks.
 
 The *plain* weights of a tracker are the file named ``<model>[-<res>].safetensors`` (the paper
 recipe's): a run with them carries no weights option, as results always had, so their results keep

@@ -4,9 +4,10 @@ The exported graph is the **full-sequence** model: input ``input`` = the network
 whole episode, ``(batch, ..., frames, ...)`` with the frame axis at position 2 (as every
 doabench model lays it out; :meth:`NeuralTracker.episode_input` builds it from the features),
 output ``directions`` = ``(batch, frames, 3)`` (not normalised). Batch and frame counts are
-dynamic. The file's metadata records the tracker id, weights SHA-256, features, resolution,
-frame spec and array. With ``onnxruntime`` installed (the ``onnx`` extra:
-``pip install 'doabench[onnx]'``) the export is checked against torch on random features.
+dynamic. The file's metadata records the tracker id, the weights (their shipped name, file name
+and SHA-256), features, resolution, frame spec and array. With ``onnxruntime`` installed (the
+``onnx`` extra: ``pip install 'doabench[onnx]'``) the export is checked against torch on random
+features.
 """
 from __future__ import annotations
 
@@ -34,9 +35,15 @@ def example_features(tracker: Any, n_frames: int = 12, seed: int = 0) -> dict[st
 
 
 def metadata(tracker: Any, tracker_id: str) -> dict[str, str]:
+    """The ONNX file's metadata: what the network is (tracker, weights by name, file and SHA-256,
+    whether trained) and what it reads (features, grid, frames, observations, array)."""
     d = tracker.describe()
+    weights = d.get("weights")
     return {
         "doabench_tracker": tracker_id,
+        # the shipped name ("moving-long"), empty for another file; the file's name either way
+        "doabench_weights_name": str(d.get("weights_name") or ""),
+        "doabench_weights_file": Path(str(weights)).name if weights else "",
         "doabench_weights_sha256": str(d.get("weights_hash") or ""),
         "doabench_trained": str(bool(d.get("trained", True))).lower(),
         "doabench_features": json.dumps(list(tracker.features)),

@@ -619,7 +619,8 @@ def model_cards(root: Path = ROOT) -> str:
              "trajectories seen, compute), how it was selected (validation), how it scores on the benchmark tasks "
              "(and whether each task is in its training distribution: same simulator, array and scene family), what "
              "it cannot do, and the commands that reproduce it. The facts come from the weights' training record "
-             "(`doabench describe --tracker ID` prints it), the run's `log.csv` and `config.json` in "
+             "(`doabench describe --tracker ID --json` prints it; without `--json`, a summary), the run's `log.csv` "
+             "and `config.json` in "
              "`training-runs/`, and the leaderboards; the network of each is described in "
              "[Network architectures](models.md), the training loop in [Training](training.md).", ""]
     weights = sorted(weights, key=lambda w: _card_order(w[0], runs))

@@ -4,7 +4,7 @@ Names, files and training runs in the catalog are written by hand when a weights
 script fills in, from the committed results (``results/``):
 
 * each named file's ``headline``: pooled RMSAE (all frames and voice-active) and lag on every task
-  with a complete run of it on the task's defaults;
+  with a complete run of it on the task's defaults, and where a task has no lag, why (``lag_note``);
 * ``defaults``: per tracker id, the name the rule of :mod:`doabench.results.default_weights` picks
   (docs/models.md), and per tracker whose id names a map resolution (``cross3d``), the resolution of
   the rule's pick over all its resolutions.
@@ -32,6 +32,26 @@ from doabench.results.default_weights import Verdict, choose, headline  # noqa: 
 from doabench.results.ranking import load_runs  # noqa: E402
 
 
+#: the ``lag_note`` of a task whose committed run has no lag field at all: scored before the lag was
+#: measured (an older results file), which says nothing about whether the talker moves
+LAG_NOT_MEASURED = "not measured: the run predates the lag measurement"
+
+
+def with_lag_notes(runs: list[dict[str, Any]], tracker: str, weights_hash: str) -> dict[str, dict[str, Any]]:
+    """:func:`headline`, and for each task without a lag the reason, so that ``doabench list weights``
+    and ``describe`` can say why: the run's own ``lag_note`` (a still talker, estimates that do not
+    follow it), or :data:`LAG_NOT_MEASURED` for a run older than the lag."""
+    figures = headline(runs, tracker, weights_hash)
+    for task, row in figures.items():
+        if row.get("lag_s") is not None:
+            continue
+        # the run headline() took: the last one of the task it accepts, as its own loop keeps the last
+        chosen = [r for r in runs if (r.get("task") or {}).get("id") == task and headline([r], tracker, weights_hash)][-1]
+        summary = chosen.get("summary") or {}
+        row["lag_note"] = str(summary.get("lag_note") or "") if "lag_s" in summary else LAG_NOT_MEASURED
+    return figures
+
+
 def computed(results_dir: Path, data: dict[str, Any]) -> tuple[dict[str, Any], dict[str, list[Verdict]]]:
     """The catalog with ``headline`` and ``defaults`` computed from the results in ``results_dir``,
     and the verdicts behind each default."""
@@ -40,7 +60,7 @@ def computed(results_dir: Path, data: dict[str, Any]) -> tuple[dict[str, Any], d
     entries = []
     for e in data["weights"]:
         sha = manifest.get(e["file"])
-        entries.append({**e, "headline": headline(runs, e["tracker"], sha) if sha else {}})
+        entries.append({**e, "headline": with_lag_notes(runs, e["tracker"], sha) if sha else {}})
     defaults: dict[str, str] = {}
     verdicts: dict[str, list[Verdict]] = {}
     trackers = sorted({e["tracker"] for e in entries})

@@ -48,3 +48,21 @@ def test_export_refuses_untrained_and_classical_trackers(tmp_path: Path, capsys)
     assert main(["export", "--tracker", "srp-max", "--out", str(tmp_path / "b.onnx")]) == 2
     assert "no neural network to export" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_export_names_the_weights_in_its_output_and_metadata(tmp_path: Path, capsys) -> None:
+    """The console line and the ONNX metadata name the weights: the shipped name (a copy of a shipped
+    file under another name is still that name: it follows the SHA-256) and the file the tracker read."""
+    onnx = pytest.importorskip("onnx", reason="the onnx extra: pip install 'doabench[onnx]'")
+    from doabench_baselines import weights as W
+
+    copy = tmp_path / "my-copy.safetensors"
+    copy.write_bytes((W.SHIPPED_DIR / "cross3d-4x8.safetensors").read_bytes())
+    out = tmp_path / "model.onnx"
+    assert main(["export", "--tracker", "cross3d:4x8", "--tracker-opt", f"weights={copy}", "--out", str(out)]) == 0
+    line = capsys.readouterr().out
+    digest = W.sha256_file(copy)
+    assert f"cross3d:4x8, weights paper (sha256 {digest[:12]})" in line, line
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert meta["doabench_weights_name"] == "paper" and meta["doabench_weights_file"] == "my-copy.safetensors"
+    assert meta["doabench_weights_sha256"] == digest

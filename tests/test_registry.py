@@ -68,7 +68,7 @@ def test_tracker_registry_decorator_and_module_path():
 
 
 def test_srp_max_options_and_describe(capsys):
-    assert main(["describe", "--tracker", "srp-max:32x64"]) == 0
+    assert main(["describe", "--tracker", "srp-max:32x64", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert d["resolution"] == "32x64" and d["causal"] is True and d["parameters"] == 0
     assert {"parameters", "causal", "receptive_field_frames", "features"} <= set(d)

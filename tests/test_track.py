@@ -148,6 +148,23 @@ def test_track_scores_against_the_truth_that_simulate_writes(scene_dir, tmp_path
     assert not (tmp_path / "x.csv").exists()
 
 
+def test_track_plot_title_names_the_weights(scene_dir, tmp_path, monkeypatch):
+    """``--tracker cross3d:4x8`` alone names no weights: the title adds them by name; another file
+    by its name and hash; a classical tracker has none to name."""
+    import doabench.cli.track as track_cli
+
+    titles = []
+    monkeypatch.setattr(track_cli, "plot_track", lambda path, times, directions, vad, title, truth=None:
+                        titles.append(title))
+    assert main(["track", str(scene_dir / "audio.wav"), "--tracker", "cross3d:4x8", "--out", str(tmp_path / "a.csv"),
+                 "--plot", str(tmp_path / "a.png")]) == 0
+    assert titles == ["audio.wav: cross3d:4x8, weights paper"]
+    other = {"weights_hash": "0123456789abcdef" * 4, "weights_name": None, "weights": "/x/mine.safetensors"}
+    assert track_cli.plot_title("r.wav", "cross3d:4x8", other) == \
+        "r.wav: cross3d:4x8, weights mine.safetensors (sha256 0123456789ab)"
+    assert track_cli.plot_title("r.wav", "srp-max", {"weights_hash": None}) == "r.wav: srp-max"
+
+
 def test_track_plot_keeps_its_legend_off_the_curves_and_names_the_polar_angle():
     from doabench.cli.track import track_figure
     from doabench.geometry import angles_to_unit

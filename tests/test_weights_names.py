@@ -193,3 +193,108 @@ def test_list_weights_shows_each_name_its_default_and_figures(capsys) -> None:
     moving = next(ln for ln in text.splitlines() if ln.startswith("cross3d:16x32") and " moving " in ln)
     assert "*" not in moving and "18.51, lag 0.15 s" in moving
     assert any(ln.startswith("cross3d:16x32") and "paper " in ln and "*" not in ln for ln in text.splitlines())
+
+
+def test_list_weights_says_for_every_figure_whether_and_why_it_has_a_lag(capsys) -> None:
+    """Every figure cell has the lag or says why not, in one wording: a committed run older than the
+    lag measurement is "lag not measured", never a bare number beside rows that have a lag."""
+    assert main(["list", "weights"]) == 0
+    text = capsys.readouterr().out
+    lines = text.splitlines()
+    header = lines[0].split()
+    tasks = [c for c in header if c.startswith("sim-")]
+    cell = re.compile(r"^-$|^\d+\.\d\d, (lag \d+\.\d\d s|lag not measured|no lag \((still scenes|not following|"
+                      r"no speech)\)|no lag)$")
+    rows = [ln for ln in lines[1:] if not ln.startswith("*")]
+    for row in rows:
+        cells = re.split(r"\s{2,}", row.strip())
+        figures = cells[3:3 + len(tasks)]
+        assert len(figures) == len(tasks) and all(cell.match(c) for c in figures), row
+    paper = next(ln for ln in rows if ln.startswith("cross3d:16x32") and " paper " in ln)
+    assert "10.71, lag not measured" in paper and "25.65, lag 0.80 s" in paper
+    assert "lag not measured: the committed run predates the lag measurement" in lines[-1]
+
+
+def test_lag_wordings_follow_the_notes_of_the_runs() -> None:
+    from doabench.cli.weights_text import figure_text, lag_legend
+
+    still = {"rmsae_all": 9.5, "lag_s": None, "lag_note": "static source (truth moves below 1 deg/s): no defined lag"}
+    stuck = {"rmsae_all": 50.0, "lag_s": None, "lag_note": "not following the talker (RMSAE at ...): no defined lag"}
+    old = {"rmsae_all": 10.7, "lag_s": None, "lag_note": "not measured: the run predates the lag measurement"}
+    assert figure_text(still) == "9.50, no lag (still scenes)"
+    assert figure_text(stuck) == "50.00, no lag (not following)"
+    assert figure_text(old) == "10.70, lag not measured"
+    assert figure_text({"rmsae_all": 11.0, "lag_s": 0.25}) == "11.00, lag 0.25 s"
+    assert figure_text(None) == "-"
+    legend = lag_legend([still, old, {"rmsae_all": 1.0, "lag_s": 0.1}])
+    assert "no lag (still scenes): the talker does not move" in legend and "lag not measured" in legend
+    assert "not following" not in legend
+
+
+def test_describe_prints_a_summary_of_the_weights_and_json_the_record(capsys) -> None:
+    """``describe --tracker`` is a summary of a few lines: the weights by name, the task they trained
+    on, the exported epoch, precision, validation and headline figures, the SHA-256; ``--json`` is the
+    whole record as before."""
+    assert main(["describe", "--tracker", "cross3d:16x32"]) == 0
+    text = capsys.readouterr().out
+    lines = text.splitlines()
+    assert len(lines) < 30 and not text.lstrip().startswith("{"), text
+    assert lines[0] == "cross3d:16x32, weights moving-long (the default of cross3d:16x32)"
+    digest = make_tracker("cross3d:16x32").weights_hash()
+    fields = {ln[2:16].strip(): ln[17:] for ln in lines if ln.startswith("  ") and not ln.startswith("    ")}
+    assert fields["sha256"] == digest
+    assert fields["trained on"].startswith("sim-train-moving v1 (recipe paper") and "fine-tuned from moving" in fields["trained on"]
+    assert fields["epochs"].startswith("epoch 24 ") and "best by validation RMSAE" in fields["epochs"]
+    assert fields["precision"].startswith("bf16")
+    assert "25.13 deg all frames" in fields["validation"] and "10.13 deg voice-active" in fields["validation"]
+    walk = next(ln for ln in lines if ln.split()[:1] == ["sim-walk"])
+    assert "17.09" in walk and "lag 0.10 s" in walk and "720 episodes" in walk
+    assert lines[-1] == "The whole record: doabench describe --tracker cross3d:16x32 --json"
+    assert main(["describe", "--tracker", "cross3d:16x32", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["weights_name"] == "moving-long" and record["weights_hash"] == digest
+    assert record["training"]["epochs_completed"] == 24
+
+
+def test_describe_summarises_every_kind_of_input_and_refuses_bad_ones_in_one_line(tmp_path: Path, capsys) -> None:
+    """Named weights with a run older than the lag, another weights file (its training record, no
+    figures), random weights, a classical tracker and a task: each a summary; bad input one line, exit 2."""
+    assert main(["describe", "--tracker", "cross3d:16x32", "--tracker-opt", "weights=paper"]) == 0
+    paper = capsys.readouterr().out
+    assert "weights paper" in paper.splitlines()[0] and "default" not in paper.splitlines()[0]
+    assert next(ln for ln in paper.splitlines() if ln.split()[:1] == ["sim-grid"]).split()[4:7] == \
+        ["lag", "not", "measured"]
+    assert "lag not measured: the committed run predates the lag measurement" in paper
+
+    mine = tmp_path / "mine.safetensors"
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
+
+    shipped = W.SHIPPED_DIR / "cross3d-4x8.safetensors"
+    with safe_open(str(shipped), framework="pt") as f:
+        meta = f.metadata()
+    state = load_file(str(shipped))
+    first = sorted(state)[0]
+    state[first] = state[first] * 0.5
+    save_file(state, str(mine), metadata=meta)
+    assert main(["describe", "--tracker", "cross3d:4x8", "--tracker-opt", f"weights={mine}"]) == 0
+    other = capsys.readouterr().out
+    assert other.splitlines()[0] == f"cross3d:4x8, weights mine.safetensors (sha256 {W.sha256_file(mine)[:12]})"
+    assert "sim-train v3" in other and "not a shipped weights file" in other
+
+    assert main(["describe", "--tracker", "cross3d:32x64", "--tracker-opt", "weights=random"]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == "cross3d:32x64, untrained (random weights)"
+    assert main(["describe", "--tracker", "srp-kalman"]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == "srp-kalman:16x32, no learned weights"
+    assert main(["describe", "--task", "sim-walk"]) == 0
+    task = capsys.readouterr().out
+    assert task.splitlines()[0].startswith("sim-walk v1 (simulated") and "720: 12 cells" in task
+    assert main(["describe", "--task", "sim-walk", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["episodes"] == 720
+
+    for argv in (["describe", "--tracker", "cross3d:4x8", "--tracker-opt", "weights=nope"],
+                 ["describe", "--tracker", "cross3d:4x8", "--tracker-opt", f"weights={tmp_path / 'missing.safetensors'}"],
+                 ["describe", "--task", "sim-nope"], ["describe"]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err

@@ -179,7 +179,7 @@ class NeuralTracker(doabench.Tracker):
                 continue
             res = parse_resolution(e.tracker.partition(":")[2]) if ":" in e.tracker else None
             out.append({"tracker": e.tracker, "name": e.name, "default": catalog.default_name(cls.model_name, res) == e.name,
-                        "file": e.file, "sha256": e.sha256, "task": e.task, "headline": dict(e.headline)})
+                        "file": e.file, "sha256": e.sha256, "task": e.task, "run": e.run, "headline": dict(e.headline)})
         return sorted(out, key=lambda d: (d["tracker"], not d["default"], d["name"]))
 
     @classmethod

@@ -19,6 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from doabench.cli.weights_text import weights_label
     from doabench.export_onnx import export_onnx
     from doabench.trackers.registry import parse_options
 
@@ -28,5 +29,12 @@ def main(args: argparse.Namespace) -> int:
     info = export_onnx(tracker, args.out, tracker_id=args.tracker)
     check = ("not verified (install onnxruntime: pip install 'doabench[onnx]')" if info["max_abs_diff"] is None
              else f"verified with onnxruntime (max |difference| {info['max_abs_diff']:.2e})")
-    print(f"wrote {args.out}: {args.tracker}, example input {list(info['input_shape'])} (frame axis 2 dynamic); {check}")
+    record = tracker.describe()
+    # the weights by name (or file) and hash: `--tracker cross3d` alone does not say which ran
+    weights = weights_label(record) or "no learned weights"
+    digest = record.get("weights_hash")
+    if digest and record.get("weights_name"):
+        weights += f" (sha256 {str(digest)[:12]})"
+    print(f"wrote {args.out}: {args.tracker}, {weights}, example input {list(info['input_shape'])} "
+          f"(frame axis 2 dynamic); {check}")
     return 0

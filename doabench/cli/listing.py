@@ -43,26 +43,27 @@ def summary(doc: str | None) -> str:
     return " ".join(first.split()).replace("``", "")
 
 
-def _figure(headline: dict, task: str) -> str:
-    h = headline.get(task)
-    if not h:
-        return "-"
-    lag = "" if h.get("lag_s") is None else f", lag {h['lag_s']:.2f} s"
-    return f"{h['rmsae_all']:.2f}{lag}"
+#: the tasks whose figures ``list weights`` shows: the default rule's three (docs/models.md)
+LISTED_TASKS = ("sim-grid", "sim-walk", "sim-turn")
 
 
 def list_weights() -> None:
     """One line per shipped weights file: tracker, name (``*``: the default), what it trained on and
-    its pooled RMSAE (all frames, deg) and lag on sim-grid, sim-walk and sim-turn."""
+    its pooled RMSAE (all frames, deg) on sim-grid, sim-walk and sim-turn, each with its lag or the
+    reason it has none (:func:`doabench.cli.weights_text.lag_text`)."""
+    from doabench.cli.weights_text import figure_text, lag_legend
     from doabench.trackers.registry import available_trackers
 
     rows = [w for cls in available_trackers().values() for w in cls.shipped_weights()]
-    header = ("tracker", "name", "trained on", "sim-grid", "sim-walk", "sim-turn", "sha256")
+    shown = [(w.get("headline") or {}).get(t) for w in rows for t in LISTED_TASKS]
+    header = ("tracker", "name", "trained on", *LISTED_TASKS, "sha256")
     table = [header] + [(w["tracker"], w["name"] + (" *" if w["default"] else ""), str(w.get("task") or "?"),
-                         *(_figure(w.get("headline") or {}, t) for t in ("sim-grid", "sim-walk", "sim-turn")),
+                         *(figure_text((w.get("headline") or {}).get(t)) for t in LISTED_TASKS),
                          (w.get("sha256") or "?")[:12]) for w in rows]
     widths = [max(len(r[i]) for r in table) for i in range(len(header))]
     for r in table:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
-    print("* the default (no weights option). Figures: pooled RMSAE over all frames [deg] and lag, from the "
-          "committed results (docs/models.md#weights-by-name); - no complete run. Use --tracker-opt weights=NAME.")
+    legend = lag_legend(f for f in shown if f)
+    print("* the default (no weights option). Figures: pooled RMSAE over all frames [deg] and the tracking lag, "
+          "from the committed results (docs/models.md#weights-by-name)" + (f"; {legend}" if legend else "")
+          + "; - no complete run. Use --tracker-opt weights=NAME.")

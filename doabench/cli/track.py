@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -151,6 +152,15 @@ def track_figure(times: np.ndarray, directions: np.ndarray, vad: np.ndarray, tit
     return fig
 
 
+def plot_title(recording: str | Path, tracker_text: str, record: Mapping[str, Any]) -> str:
+    """The plot's title: the recording, the tracker as typed and its weights by name (or file and
+    hash; :func:`doabench.cli.weights_text.weights_label`), since ``cross3d`` alone names no weights."""
+    from doabench.cli.weights_text import weights_label
+
+    weights = weights_label(record)
+    return f"{Path(recording).name}: {tracker_text}" + (f", {weights}" if weights else "")
+
+
 def plot_track(path: str | Path, times: np.ndarray, directions: np.ndarray, vad: np.ndarray, title: str,
                truth: np.ndarray | None = None) -> None:
     """Write :func:`track_figure` to ``path`` (its suffix names the format)."""
@@ -235,7 +245,8 @@ def main(args: argparse.Namespace) -> int:
     written.append(args.out)
     print(f"wrote {args.out}: {len(table)} frames from {args.recording} with {args.tracker}")
     if args.plot:
-        plot_track(args.plot, out["times"], out["directions"], out["vad"], f"{Path(args.recording).name}: {args.tracker}",
+        plot_track(args.plot, out["times"], out["directions"], out["vad"],
+                   plot_title(args.recording, args.tracker, tracker.describe()),
                    truth=None if truth is None else truth["directions"])
         print(f"wrote {args.plot}")
     return 0

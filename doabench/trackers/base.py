@@ -152,7 +152,9 @@ class Tracker:
     def shipped_weights(cls) -> list[dict[str, Any]]:
         """Every shipped weights file of this tracker, for ``doabench list weights``: dicts with
         ``tracker`` (canonical id), ``name``, ``default`` (bool: what runs without a weights option),
-        ``file``, ``sha256``, ``task`` (trained on) and ``headline`` (``{task: {"rmsae_all", "lag_s", ...}}``)."""
+        ``file``, ``sha256``, ``task`` (trained on), ``run`` (its training run's folder name, or None)
+        and ``headline`` (``{task: {"rmsae_all", "rmsae_nonsilent", "lag_s", "episodes"}}``, with
+        ``lag_note`` saying why where ``lag_s`` is None)."""
         return []
 
     @classmethod
