@@ -79,12 +79,12 @@ def test_only_complete_runs_are_ranked_and_partial_ones_are_listed_with_coverage
     _write(tmp_path, "sim-grid__srp-max_8x16.json", partial)
     files = build_leaderboards(tmp_path)
     page = files["sim-grid.md"]
-    ranked, rest = page.split("## Partial runs (not ranked)")
+    ranked, rest = page.split("## Partial runs (ranked apart from complete runs)")
     assert "| 1 | `srp-kalman:32x64`" in ranked and "srp-max:8x16" not in ranked.split("## Runs")[0]
-    assert "| `srp-max:8x16` | 1/2 episodes, 1/18 cells (`--episodes 1` spread over the cells) | 3.00" in rest
+    assert "| 1 | `srp-max:8x16` | 1 of 2 episodes, 1 of 18 cells (`--episodes 1` spread over the cells) | 3.00" in rest
     assert "`srp-kalman:32x64`" in files["summary.md"] and "1 (+1 partial)" in files["summary.md"]
     rows = files["sim-grid.csv"].splitlines()
-    assert rows[1].startswith("doabench run,1,sim-grid") and rows[2].startswith("partial run (not ranked),,sim-grid")
+    assert rows[1].startswith("doabench run,1,sim-grid") and rows[2].startswith("partial run (ranked apart),P1,sim-grid")
     assert "--episodes 1" in rest
 
 
@@ -262,7 +262,7 @@ def test_run_says_partial_or_full_and_shows_the_committed_full_task_figure(tmp_p
     quick = ["--task", "sim-demo", "--episodes", "1", "--quiet", "--no-frames", "--out", str(tmp_path)]
     assert main(["run", "--tracker", "srp-max", *quick]) == 0
     out = capsys.readouterr().out
-    assert ("partial run: 1 of 4 episodes of sim-demo v2, listed apart and unranked on its leaderboard: its figures "
+    assert ("partial run: 1 of 4 episodes of sim-demo v2, ranked apart from full runs on its leaderboard: its figures "
             "are not comparable with a full-task figure") in out
     s = committed["summary"]
     assert (f"committed full-task run of this configuration ({ROOT / 'results' / 'sim-demo__srp-max_16x32.json'}"

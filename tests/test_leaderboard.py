@@ -22,9 +22,10 @@ REFERENCE = ROOT / "leaderboards" / "locata-paper-table2.csv"
 
 
 def _results(tracker: str, rmsae: float, task: str = "sim-grid", episodes_run: int = 2, total: int = 2,
-             recordings: bool = False) -> dict:
+             recordings: bool = False, scored_episodes: int = 1) -> dict:
     """A minimal results dict in the runner's schema, two episodes, grid cells for sim-grid. Only the
-    first episode has scored frames, so the summary's pooled RMSAEs are its own, as the rows say."""
+    first ``scored_episodes`` episodes have scored frames, each scoring the summary's RMSAEs, so the
+    pooled RMSAEs are what the rows say (and with 3 of them the file's interval is shown)."""
     rng = np.random.default_rng(abs(hash(tracker)) % 1000)
     times = (np.arange(5) * 3072 + 2048) / 16000
     truth = np.tile([[1.0, 0.0, 0.0]], (5, 1))
@@ -32,8 +33,10 @@ def _results(tracker: str, rmsae: float, task: str = "sim-grid", episodes_run: i
                "truth": truth.tolist(), "vad": [1, 1, 0, 1, 1]} for _ in range(episodes_run)]
     rows = [{"episode": i, "task": "sim-t60-0.3-snr-30" if i == 0 else "sim-t60-0.9-snr-5", "seed": 100 + i,
              "t60": 0.3 if i == 0 else 0.9, "snr": 30.0 if i == 0 else 5.0,
-             "recording": i + 1 if recordings else None, "rmsae_all": rmsae + i, "rmsae_nonsilent": rmsae - 1 + i,
-             "n_frames": 5 if i == 0 else 0, "n_nonsilent": 4 if i == 0 else 0}
+             "recording": i + 1 if recordings else None,
+             "rmsae_all": rmsae + (0 if i < scored_episodes else i),
+             "rmsae_nonsilent": rmsae - 1 + (0 if i < scored_episodes else i),
+             "n_frames": 5 if i < scored_episodes else 0, "n_nonsilent": 4 if i < scored_episodes else 0}
             for i in range(episodes_run)]
     pooled = {"rmsae_all": rmsae, "rmsae_nonsilent": rmsae - 1, "mae": rmsae / 2, "median": rmsae / 3,
               "p90": rmsae * 1.5, "within_5": 0.1, "within_10": 0.5, "within_20": 0.8, "within_30": 0.9,
@@ -72,7 +75,8 @@ def results_dir(tmp_path: Path) -> Path:
     d = tmp_path / "results"
     d.mkdir()
     for tracker, value in (("srp-max:8x16", 30.0), ("srp-kalman:32x64", 12.5)):
-        (d / f"sim-grid__{tracker.replace(':', '_')}.json").write_text(json.dumps(_results(tracker, value)))
+        (d / f"sim-grid__{tracker.replace(':', '_')}.json").write_text(
+            json.dumps(_results(tracker, value, episodes_run=3, total=3, scored_episodes=3)))
     (d / "sim-demo__srp-max.json").write_text(json.dumps(_results("srp-max", 5.0, "sim-demo", 1, 4)))
     (d / "locata-3__srp-max.json").write_text(json.dumps(_results("srp-max", 20.0, "locata-3", 2, 2, True)))
     (d / "notes.json").write_text(json.dumps({"something": "else"}))  # not a results file: skipped, named
@@ -94,10 +98,10 @@ def test_tables_ranked_with_cis_provenance_and_cells(results_dir: Path) -> None:
     assert "base seed 7" in page and "Test CPU ×2" in page and "2026-01-01T00:00:00+00:00" in page
     assert "`doabench run --tracker srp-max:8x16 --task sim-grid --librispeech LIBRISPEECH_ROOT`" in page
     assert "Regenerate with `doabench leaderboard`" in page
-    # partial runs are listed apart, unranked, with their coverage, and reproducible with --episodes
+    # partial runs are ranked apart, with their coverage, and reproducible with --episodes
     demo = files["sim-demo.md"]
-    assert "No complete run of this task yet" in demo and "## Partial runs (not ranked)" in demo
-    assert "1/4 episodes (the first 1)" in demo and "--episodes 1" in demo
+    assert "No complete run of this task yet" in demo and "## Partial runs (ranked apart from complete runs)" in demo
+    assert "1 of 4 episodes (the first 1)" in demo and "--episodes 1" in demo
     cells = files["sim-grid-cells.csv"].splitlines()
     assert cells[0].startswith("tracker,t60,snr") and len(cells) == 5
 
@@ -256,21 +260,118 @@ def test_several_results_folders_are_read_together(results_dir: Path, tmp_path: 
     assert again == build_leaderboards(results_dir)
 
 
-def test_one_configuration_in_two_folders_is_refused(results_dir: Path, tmp_path: Path, capsys) -> None:
-    """A configuration with a file in each folder is one line naming both files, never a silent pick."""
+def test_one_configuration_in_two_folders_is_shown_once_per_folder(results_dir: Path, tmp_path: Path) -> None:
+    """A configuration with a file in each folder is two rows, each naming its folder and its
+    episodes (no refusal, no silent pick); a partial run of a configuration also in another folder
+    is marked the same way and ranked apart; within one folder, files of one configuration stay one
+    row with the others superseded."""
+    import csv as csv_module
+
     mine = tmp_path / "mine"
     mine.mkdir()
-    (mine / "rerun.json").write_text(json.dumps(_results("srp-max:8x16", 29.0)))
-    with pytest.raises(InputError, match="one configuration .*in two results folders"):
-        load_runs([results_dir, mine])
-    assert cli(["leaderboard", "--results", str(results_dir), "--results", str(mine),
-                "--out", str(tmp_path / "o")]) == 2
-    errors = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
-    assert len(errors) == 1 and "sim-grid__srp-max_8x16.json" in errors[0] and "rerun.json" in errors[0]
-    assert not (tmp_path / "o").exists()
+    (mine / "rerun.json").write_text(json.dumps(_results("srp-max:8x16", 29.0)))  # 2 of 2 episodes: complete
+    (mine / "quick.json").write_text(json.dumps(_results("srp-kalman:32x64", 5.0, episodes_run=1, total=3)))
+    out = tmp_path / "boards"
+    assert cli(["leaderboard", "--results", str(results_dir), "--results", str(mine), "--out", str(out)]) == 0
+    page = (out / "sim-grid.md").read_text()
+    ranked = page.split("## Partial runs")[0].split("## Per cell")[0]
+    assert f"| 1 | `srp-kalman:32x64` (`{results_dir}`, 3 episodes) |" in ranked  # the partial one is not ranked here
+    assert f"| 2 | `srp-max:8x16` (`{mine}`, 2 episodes) |" in ranked
+    assert f"| 3 | `srp-max:8x16` (`{results_dir}`, 3 episodes) |" in ranked
+    partial = page.split("## Partial runs (ranked apart from complete runs)")[1].split("## ")[0]
+    assert f"| 1 | `srp-kalman:32x64` (`{mine}`, 1 of 3 episodes) | 1 of 3 episodes" in partial
+    assert "## Superseded files" not in page
+    rows = list(csv_module.DictReader((out / "sim-grid.csv").read_text().splitlines()))
+    assert [(r["rank"], r["tracker"], Path(r["results_file"]).name) for r in rows] == [
+        ("1", "srp-kalman:32x64", "sim-grid__srp-kalman_32x64.json"), ("2", "srp-max:8x16", "rerun.json"),
+        ("3", "srp-max:8x16", "sim-grid__srp-max_8x16.json"), ("P1", "srp-kalman:32x64", "quick.json")]
+    # a configuration in one folder only reads as before: no folder in its label
+    assert "`srp-max:8x16` (" not in build_leaderboards(results_dir)["sim-grid.md"].split("## Per cell")[0]
     # within one folder, files of one configuration are still shown once and listed as superseded
     (results_dir / "rerun.json").write_text(json.dumps(_results("srp-max:8x16", 29.0)))
     assert "## Superseded files" in build_leaderboards(results_dir)["sim-grid.md"]
+
+
+def test_a_partial_run_is_marked_and_ranked_apart_from_complete_runs(tmp_path: Path) -> None:
+    """Partial runs say how many of the task's episodes they hold ("1 of 4 episodes") and are
+    ranked among themselves, under the complete runs, whose ranks they never change, however good."""
+    import csv as csv_module
+
+    for name, rmsae, run in (("a", 20.0, 4), ("b", 25.0, 4), ("c", 3.0, 1), ("d", 10.0, 2)):
+        (tmp_path / f"{name}.json").write_text(json.dumps(_results(f"srp-max:{name}", rmsae, "sim-demo", run, 4)))
+    page = build_leaderboards(tmp_path)["sim-demo.md"]
+    ranked, partial = page.split("## Partial runs (ranked apart from complete runs)")
+    assert "| 1 | `srp-max:a` |" in ranked and "| 2 | `srp-max:b` |" in ranked
+    assert "srp-max:c" not in ranked.split("## Runs")[0] and "srp-max:d" not in ranked.split("## Runs")[0]
+    assert "| 1 | `srp-max:c` | 1 of 4 episodes (the first 1) | 3.00" in partial
+    assert "| 2 | `srp-max:d` | 2 of 4 episodes (the first 2) | 10.00" in partial
+    assert "1 of 4 episodes" in partial.split("## Runs")[1]  # its provenance says so too
+    rows = list(csv_module.DictReader(build_leaderboards(tmp_path)["sim-demo.csv"].splitlines()))
+    assert [(r["rank"], r["tracker"], r["status"]) for r in rows] == [
+        ("1", "srp-max:a", "doabench run"), ("2", "srp-max:b", "doabench run"),
+        ("P1", "srp-max:c", "partial run (ranked apart)"), ("P2", "srp-max:d", "partial run (ranked apart)")]
+
+
+@pytest.mark.parametrize("episodes", [1, 2])
+def test_a_run_of_one_or_two_episodes_has_no_interval_of_its_own(tmp_path: Path, capsys, episodes: int) -> None:
+    """A bootstrap over one or two episodes has (next to) no width: such a file holds no interval
+    (null, valid by the schema and by the summary check), ``run`` prints ``n/a``, the leaderboard
+    ``[n/a]`` with its legend, also for a file written before, whose interval was ``[x, x]``. An
+    edited interval is still caught."""
+    jsonschema = pytest.importorskip("jsonschema")
+    from conftest import TINY_SCENE
+    from doabench.results.schema import summary_problem, validate_results
+    from doabench.results.writer import format_summary
+    from doabench.runner import run_task
+
+    results = run_task("srp-max:4x8", "sim-demo", episodes=episodes, progress=False, keep_frames=False,
+                       scene_overrides=TINY_SCENE)
+    summary = results["summary"]
+    assert summary["rmsae_all_ci95"] is None and summary["rmsae_nonsilent_ci95"] is None
+    validate_results(results)
+    assert summary_problem(results) is None
+    printed = format_summary(results)
+    assert "95% CI n/a" in printed and "fewer than 3 episodes with scored frames" in printed
+    assert "95% CI [" not in printed
+    folder = tmp_path / "results"
+    folder.mkdir()
+    (folder / "new.json").write_text(json.dumps(results, default=float))
+    before = copy.deepcopy(results)  # as an older doabench wrote it: an interval of no width
+    before["tracker"]["options"] = {"written": "before"}
+    value = summary["rmsae_all"]
+    before["summary"]["rmsae_all_ci95"] = [value, value]
+    before["summary"]["rmsae_nonsilent_ci95"] = [summary["rmsae_nonsilent"]] * 2
+    (folder / "before.json").write_text(json.dumps(before, default=float))
+    assert "95% CI n/a" in format_summary(before)
+    files = build_leaderboards(folder)
+    page, table = files["sim-demo.md"], files["sim-demo.csv"]
+    assert page.count(f"| {value:.2f} [n/a] | {summary['rmsae_nonsilent']:.2f} [n/a] |") == 2  # both files
+    assert f"[{value:.2f}, {value:.2f}]" not in page
+    assert "**[n/a]**: no 95% interval (fewer than 3 episodes with scored frames" in page
+    assert f"{value:.4f},,," in table  # the CSV's interval cells are empty
+    edited = copy.deepcopy(results)
+    edited["summary"]["rmsae_all_ci95"] = [0.1, 0.2]
+    assert "rmsae_all_ci95" in summary_problem(edited)
+    with pytest.raises(jsonschema.ValidationError):
+        validate_results({**results, "summary": {**summary, "rmsae_all_ci95": "none"}})
+
+
+def test_an_interval_of_no_width_over_differing_episodes_is_no_interval() -> None:
+    """Three episodes of which only one has scored frames resample to one value every time: no
+    interval; three differing episodes have one; equal episodes keep their interval of no width."""
+    from doabench.metrics import bootstrap_ci_from_sums, defined_interval
+
+    n = np.array([40.0, 60.0, 50.0])
+    assert bootstrap_ci_from_sums(np.array([100.0]), np.array([40.0])) is None
+    assert bootstrap_ci_from_sums(np.array([100.0, 900.0]), n[:2]) is None
+    assert bootstrap_ci_from_sums(np.array([100.0, 0.0, 0.0]), np.array([40.0, 0.0, 0.0])) is None
+    low, high = bootstrap_ci_from_sums(np.array([100.0, 900.0, 2500.0]), n)
+    assert low < high
+    equal = bootstrap_ci_from_sums(9.0 * n, n)
+    assert equal == pytest.approx((3.0, 3.0))
+    assert defined_interval([1.0, 2.0, 3.0], [5, 5, 5], (2.0, 2.0)) is None  # no width, yet they differ
+    assert defined_interval([1.0, 2.0, 3.0], [5, 5, 5], (1.2, 2.8)) == (1.2, 2.8)
+    assert defined_interval([1.0, 2.0, 3.0], [5, 5, 5], (float("nan"), 2.0)) is None
 
 
 @pytest.mark.parametrize("content, reason", [

@@ -8,14 +8,16 @@ from pathlib import Path
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("leaderboard", help="build leaderboard tables from results files",
                        description="Write one Markdown table and one CSV per task (grid tasks also get per-cell "
-                                   "tables and a cells CSV) plus summary.md, from the results JSON files. "
+                                   "tables and a cells CSV) plus summary.md, from the results JSON files. Complete "
+                                   "runs are ranked; partial runs (n of N episodes) are ranked apart, under them. "
                                    "Output is deterministic: the same inputs give byte-identical files.")
     # Defaults under the git-ignored runs/, where `doabench run` writes by default: building a
     # leaderboard never rewrites the committed leaderboards/ unless asked to (make update-demo-results).
     p.add_argument("--results", action=_Folders, default=["runs/results"], metavar="FOLDER",
-                   help="folder of results JSON files, repeatable: the folders are read together, and one "
-                        "configuration with files in two of them is refused (default: runs/results/, where "
-                        "doabench run writes; the committed ones: --results results)")
+                   help="folder of results JSON files, repeatable: the folders are read together, and a "
+                        "configuration with files in two of them is shown once per folder, each row naming its "
+                        "folder and episodes (default: runs/results/, where doabench run writes; the committed "
+                        "ones: --results results)")
     p.add_argument("--out", default="runs/leaderboards",
                    help="output folder (default: runs/leaderboards/, git-ignored; the committed tables: "
                         "--out leaderboards)")

@@ -20,8 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--task", required=True, help="task id (doabench list tasks)")
     p.add_argument("--episodes", type=int,
                    help="run only N episodes: on a grid task spread over its cells (the first episode of every "
-                        "cell in turn, then the second, ...), else the first N. A partial run is listed apart, "
-                        "unranked, on the leaderboards")
+                        "cell in turn, then the second, ...), else the first N. A partial run is ranked apart "
+                        "from complete runs on the leaderboards")
     p.add_argument("--cells", metavar="IDS",
                    help="grid tasks: run only these cells (comma-separated cell task ids, doabench list tasks); "
                         "with --episodes, N episodes spread over them")

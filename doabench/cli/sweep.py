@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="option passed to every tracker's constructor (repeatable)")
     p.add_argument("--episodes", type=int,
                    help="run only N episodes of each task (grid tasks: spread over the cells, as `doabench run "
-                        "--episodes` does); partial runs are listed apart, unranked, on the leaderboard")
+                        "--episodes` does); partial runs are ranked apart from complete runs on the leaderboard")
     p.add_argument("--delays", choices=["nearest", "exact"], default=None,
                    help="SRP-PHAT delay mode (default: each tracker's trained one, else nearest)")
     p.add_argument("--out", default="runs/sweep",

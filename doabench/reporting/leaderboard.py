@@ -22,9 +22,10 @@ from typing import Any, Sequence
 from doabench.envs.sources import recorded_task_kind
 from doabench.reporting.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, coverage, display_path,
-                                      load_references, load_runs, recording_mean)
+                                      episode_count, load_references, load_runs, partial_coverage, recording_mean)
 from doabench.files import file_stem
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
+from doabench.results.intervals import NO_INTERVAL, NO_INTERVAL_NOTE, shown_interval
 from doabench.results.labels import csv_cell
 from doabench.trackers.registry import TRACKERS
 
@@ -40,16 +41,37 @@ def _num(x: Any, digits: int = 2) -> str:
     return "—" if math.isnan(x) else f"{x:.{digits}f}"
 
 
-def _ci(ci: Any) -> str:
-    if not ci or len(ci) != 2 or any(v is None or math.isnan(float(v)) for v in ci):
-        return ""
-    return f"[{float(ci[0]):.2f}, {float(ci[1]):.2f}]"
+#: a value without an interval of its own (:func:`doabench.results.intervals.shown_interval`)
+NO_INTERVAL_CELL = f"[{NO_INTERVAL}]"
 
 
-def _with_ci(value: Any, ci: Any) -> str:
+def _with_ci(value: Any, interval: tuple[float, float] | None) -> str:
+    """``12.34 [10.00, 15.00]``; ``12.34 [n/a]`` where the file's episodes give no interval."""
     text = _num(value)
-    interval = _ci(ci)
-    return f"{text} {interval}" if interval and text != "—" else text
+    if text == "—":
+        return text
+    return f"{text} [{interval[0]:.2f}, {interval[1]:.2f}]" if interval else f"{text} {NO_INTERVAL_CELL}"
+
+
+def _file_ci(results: dict[str, Any], metric: str, cell: str | None = None) -> str:
+    """A results file's value of ``metric`` (of its summary, or of grid cell ``cell``) with its interval."""
+    part = results["summary"] if cell is None else (results.get("cells") or {}).get(cell) or {}
+    return _with_ci(part.get(metric), shown_interval(results, metric, cell))
+
+
+def _no_interval_legend(rows: Sequence[Sequence[str]]) -> list[str]:
+    """The legend of ``[n/a]`` under a table that shows one."""
+    if not any(NO_INTERVAL_CELL in str(cell) for row in rows for cell in row):
+        return []
+    return ["", f"**{NO_INTERVAL_CELL}**: no 95% interval ({NO_INTERVAL_NOTE})."]
+
+
+def tracker_cell(run: RunFile) -> str:
+    """A row's tracker as a table shows it: its label, and where its configuration is shown from
+    several results folders, the folder and the episodes of this row
+    (``srp-max:16x32`` (`runs/mine`, 36 of 360 episodes))."""
+    text = f"`{run.tracker_id}`"
+    return text + (f" (`{run.folder}`, {episode_count(run.results)})" if run.in_several_folders else "")
 
 
 def _cell(text: Any) -> str:
@@ -139,7 +161,8 @@ def provenance_line(label: str, run: RunFile) -> str:
         + (f"weights sha256 `{weights[:16]}`" if weights else
            "UNTRAINED (random weights)" if _untrained(r) else "no weights"),
         f"task `{task['id']}` v{task.get('version', '?')}, base seed {task.get('base_seed')} "
-        f"(per-episode seeds in the file), {coverage(r)}" + _selection_text(task),
+        f"(per-episode seeds in the file), {coverage(r) if run.complete else partial_coverage(r)}"
+        + _selection_text(task),
         commit_text,
         f"doabench {env.get('doabench', '?')}, Python {env.get('python', '?')}, torch {env.get('torch', '?')}, "
         f"numpy {env.get('numpy', '?')}",
@@ -281,40 +304,42 @@ def _main_row(rank: int, run: RunFile, label: str, by_recording: bool = False, w
     pooled = s.get("pooled") or {}
     within = pooled.get("within_10")
     row = [
-        str(rank), f"`{run.tracker_id}`" + (" **(untrained)**" if _untrained(r) else "") + _distribution_mark(r),
+        str(rank), tracker_cell(run) + (" **(untrained)**" if _untrained(r) else "") + _distribution_mark(r),
         "yes" if r.get("causal") else "no (offline)",
         f"{int(r['tracker'].get('parameters') or 0):,}", _input_text(r), _episodes_text(r["task"]),
         *([_num(recording_mean(r))] if by_recording else []),
-        _with_ci(s.get("rmsae_all"), s.get("rmsae_all_ci95")),
-        _with_ci(s.get("rmsae_nonsilent"), s.get("rmsae_nonsilent_ci95")),
+        _file_ci(r, "rmsae_all"), _file_ci(r, "rmsae_nonsilent"),
         _num(pooled.get("mae")), _num(pooled.get("median")),
         "—" if within is None else f"{100 * float(within):.0f}%", _num(pooled.get("azimuth_mae")), label,
     ]
     return row[:-1] + [_lag(s)] + row[-1:] if with_lag else row
 
 
-PARTIAL_COLUMNS = ("tracker", "covers", "RMSAE all frames [95% CI]", "RMSAE non-silent [95% CI]", "run")
+PARTIAL_COLUMNS = ("rank", "tracker", "covers", "RMSAE all frames [95% CI]", "RMSAE non-silent [95% CI]", "run")
+PARTIAL_HEADING = "## Partial runs (ranked apart from complete runs)"
 
 
 def partial_section(board: TaskBoard, labels: dict[str, str], with_lag: bool) -> list[str]:
-    """Partial runs (``--episodes N``, ``--cells``), apart from the ranking, with their coverage."""
+    """Partial runs (``--episodes N``, ``--cells``), each marked ``n of N episodes``, ranked among
+    themselves in a table of their own: a complete run's rank never depends on them."""
     if not board.partial:
         return []
-    lines = ["", "## Partial runs (not ranked)", "",
+    lines = ["", PARTIAL_HEADING, "",
              "Runs of some of the task's episodes (`--episodes N`, `--cells`): their numbers hold for the episodes "
-             "they cover and are not ranked against complete runs. RMSAE in degrees pooled over those episodes, "
-             "with the 95% bootstrap interval over them.", ""]
+             "they cover, so they are ranked here, among themselves (by the same measure as the complete runs), "
+             "and never against complete runs; two partial runs over different episodes compare only roughly. "
+             "RMSAE in degrees pooled over those episodes, with the 95% bootstrap interval over them.", ""]
     header = PARTIAL_COLUMNS[:-1] + (("lag [s]",) if with_lag else ()) + PARTIAL_COLUMNS[-1:]
     rows = []
-    for run in board.partial:
+    for rank, run in enumerate(board.partial, start=1):
         r = run.results
         s = r["summary"]
-        rows.append([f"`{run.tracker_id}`" + (" **(untrained)**" if _untrained(r) else ""),
-                     coverage(r) + _selection_text(r["task"]),
-                     _with_ci(s.get("rmsae_all"), s.get("rmsae_all_ci95")),
-                     _with_ci(s.get("rmsae_nonsilent"), s.get("rmsae_nonsilent_ci95"))]
+        rows.append([str(rank), tracker_cell(run) + (" **(untrained)**" if _untrained(r) else ""),
+                     partial_coverage(r) + _selection_text(r["task"]),
+                     _file_ci(r, "rmsae_all"), _file_ci(r, "rmsae_nonsilent")]
                     + ([_lag(s)] if with_lag else []) + [labels[run.path]])
     lines += _table(header, rows)
+    lines += _no_interval_legend(rows)
     return lines + (_lag_notes(board.partial) if with_lag and not board.runs else [])
 
 
@@ -348,6 +373,11 @@ def _cell_lookup(run: RunFile) -> dict[tuple[float, float], dict[str, Any]]:
     return {(float(c["t60"]), float(c["snr"])): c for c in (run.results.get("cells") or {}).values()}
 
 
+def _cell_ids(run: RunFile) -> dict[tuple[float, float], str]:
+    """Each cell's id (the key of ``cells``, the ``task`` of its episode rows) by ``(t60, snr)``."""
+    return {(float(c["t60"]), float(c["snr"])): str(cell) for cell, c in (run.results.get("cells") or {}).items()}
+
+
 def _g(x: float) -> str:
     return f"{x:g}"
 
@@ -361,8 +391,10 @@ def grid_section(board: TaskBoard, labels: dict[str, str]) -> list[str]:
     lines = ["", "## Per cell: T60 × SNR", "",
              "RMSAE in degrees per grid cell with the 95% bootstrap interval over the cell's episodes. "
              "*All* includes silent frames (paper Fig. 8), *non-silent* excludes them (paper Fig. 6)."]
+    legend_rows: list[list[str]] = []
     for run in runs:
         cells = _cell_lookup(run)
+        ids = _cell_ids(run)
         header = ["T60 [s]"] + [f"SNR {_g(s)} dB, {m}" for s in snrs for m in ("all", "non-silent")]
         rows = []
         for t in t60s:
@@ -372,14 +404,15 @@ def grid_section(board: TaskBoard, labels: dict[str, str]) -> list[str]:
                 if c is None:
                     row += ["—", "—"]
                 else:
-                    row += [_with_ci(c.get("rmsae_all"), c.get("rmsae_all_ci95")),
-                            _with_ci(c.get("rmsae_nonsilent"), c.get("rmsae_nonsilent_ci95"))]
+                    row += [_file_ci(run.results, "rmsae_all", ids[(t, s)]),
+                            _file_ci(run.results, "rmsae_nonsilent", ids[(t, s)])]
             rows.append(row)
         n = sorted({int(c.get("n_episodes", 0)) for c in cells.values()})
-        lines += ["", f"### `{run.tracker_id}` ({labels[run.path]})", "",
+        lines += ["", f"### {tracker_cell(run)} ({labels[run.path]})", "",
                   f"Episodes per cell: {', '.join(map(str, n))}.", ""]
         lines += _table(header, rows)
-    return lines
+        legend_rows += rows
+    return lines + _no_interval_legend(legend_rows)
 
 
 def reference_section(board: TaskBoard, recordings: list[str]) -> list[str]:
@@ -413,7 +446,7 @@ def _locata_rows(runs: Sequence[RunFile], labels: dict[str, str]) -> list[list[s
             continue
         off, cor, srp = block.get("official") or {}, block.get("corrected") or {}, block.get("srp_dnn") or {}
         accuracy = srp.get("accuracy")
-        rows.append([f"`{run.tracker_id}`", _num(off.get("az_error_ungated_deg")), _num(cor.get("az_error_ungated_deg")),
+        rows.append([tracker_cell(run), _num(off.get("az_error_ungated_deg")), _num(cor.get("az_error_ungated_deg")),
                      _num(cor.get("pd"), 3), _num(cor.get("latency_s")), _num(off.get("far")),
                      _num((off.get("ospa_deg") or {}).get("1")),
                      "—" if accuracy is None else f"{100 * float(accuracy):.1f}%", _num(srp.get("az_mae_deg")),
@@ -464,6 +497,7 @@ def task_markdown(board: TaskBoard, command: str) -> str:
                       "MAE, median, ≤10° and azimuth MAE are over non-silent frames. Definitions: docs/concepts.md.", ""]
         rows = [_main_row(i, run, labels[run.path], by_recording, with_lag) for i, run in enumerate(board.runs, start=1)]
         lines += _table(_columns(by_recording, with_lag), rows)
+        lines += _no_interval_legend(rows)
         if with_lag:
             lines += _lag_notes(board.runs + board.partial)
         lines += _distribution_notes(board)
@@ -479,7 +513,7 @@ def task_markdown(board: TaskBoard, command: str) -> str:
                 vals = [per.get(r) for r in recordings]
                 present = [float(v) for v in vals if v is not None]
                 mean = sum(present) / len(present) if present else None
-                rec_rows.append([f"`{run.tracker_id}`"] + [_num(v) for v in vals] + [_num(mean), labels[run.path]])
+                rec_rows.append([tracker_cell(run)] + [_num(v) for v in vals] + [_num(mean), labels[run.path]])
             lines += _table(header, rec_rows)
         lines += locata_section(board, labels)
     elif board.partial:
@@ -508,7 +542,7 @@ CSV_COLUMNS = (
     "device", "torch", "doabench", "date", "command", "reference", "training_distribution", "cells_run",
     "cells_total",
 )
-PARTIAL = "partial run (not ranked)"
+PARTIAL = "partial run (ranked apart)"
 
 
 def _csv_text(rows: list[dict[str, Any]], columns: Sequence[str]) -> str:
@@ -520,18 +554,21 @@ def _csv_text(rows: list[dict[str, Any]], columns: Sequence[str]) -> str:
 
 
 def task_csv(board: TaskBoard) -> str:
-    """One row per run (ranked) and per published method; per-recording values as ``rec=value;...``."""
+    """One row per run (complete runs ranked 1, 2 ...; partial runs ranked apart, P1, P2 ...) and per
+    published method; per-recording values as ``rec=value;...``."""
     rows = []
-    ranked = [(rank, run) for rank, run in enumerate(board.runs, start=1)] + [(None, run) for run in board.partial]
+    # partial runs are ranked apart: P1, P2 ... (the page's labels), never numbers among complete runs
+    ranked: list[tuple[int | str, RunFile]] = [(rank, run) for rank, run in enumerate(board.runs, start=1)]
+    ranked += [(f"P{rank}", run) for rank, run in enumerate(board.partial, start=1)]
     for rank, run in ranked:
         r = run.results
         s, env, task, tr = r["summary"], r["environment"], r["task"], r["tracker"]
         pooled = s.get("pooled") or {}
-        all_ci = s.get("rmsae_all_ci95") or [None, None]
-        ns_ci = s.get("rmsae_nonsilent_ci95") or [None, None]
+        all_ci = shown_interval(r, "rmsae_all") or (None, None)
+        ns_ci = shown_interval(r, "rmsae_nonsilent") or (None, None)
         per = _per_recording(run)
         rows.append({
-            "status": REPRODUCED if rank is not None else PARTIAL, "rank": rank if rank is not None else "",
+            "status": REPRODUCED if run.complete else PARTIAL, "rank": rank,
             "task": task["id"], "task_version": task.get("version"),
             "tracker": run.tracker_id, "tracker_name": tr.get("name"), "tracker_version": tr.get("version"),
             "causal": str(bool(r.get("causal"))).lower(), "parameters": tr.get("parameters"),
@@ -580,9 +617,10 @@ def cells_csv(board: TaskBoard) -> str | None:
     too, ``n_episodes`` saying how many of the cell's episodes they hold."""
     rows = []
     for run in sorted(board.runs + board.partial, key=lambda r: (r.tracker_id, r.path)):
+        ids = _cell_ids(run)
         for (t, s), c in sorted(_cell_lookup(run).items()):
-            a = c.get("rmsae_all_ci95") or [None, None]
-            n = c.get("rmsae_nonsilent_ci95") or [None, None]
+            a = shown_interval(run.results, "rmsae_all", ids[(t, s)]) or (None, None)
+            n = shown_interval(run.results, "rmsae_nonsilent", ids[(t, s)]) or (None, None)
             rows.append({"tracker": run.tracker_id, "t60": _g(t), "snr": _g(s), "n_episodes": c.get("n_episodes"),
                          "rmsae_all": _csv_num(c.get("rmsae_all")), "rmsae_all_ci95_low": _csv_num(a[0]),
                          "rmsae_all_ci95_high": _csv_num(a[1]), "rmsae_nonsilent": _csv_num(c.get("rmsae_nonsilent")),
@@ -598,14 +636,19 @@ def _locata_overall(boards: dict[str, TaskBoard]) -> list[str]:
     for task_id, board in boards.items():
         for run in board.runs:
             mean = recording_mean(run.results)
-            if mean is not None:
-                per.setdefault(run.tracker_id, {}).setdefault(task_id, mean)
+            if mean is not None:  # a configuration shown from several folders: one line per folder
+                per.setdefault(_folder_cell(run), {}).setdefault(task_id, mean)
     rows = [(sum(v.values()) / len(v), t, v) for t, v in per.items() if len(v) > 1]
     if not rows:
         return []
     lines = ["", "## doabench averages over recording tasks (mean of the per-task means of recordings)", ""]
     return lines + _table(["tracker", "tasks", "RMSAE all, mean over tasks"],
-                          [[f"`{t}`", ", ".join(sorted(v)), _num(m)] for m, t, v in sorted(rows)])
+                          [[t, ", ".join(sorted(v)), _num(m)] for m, t, v in sorted(rows)])
+
+
+def _folder_cell(run: RunFile) -> str:
+    """A tracker across tasks: its label, and its folder where its configuration is in several."""
+    return f"`{run.tracker_id}`" + (f" (`{run.folder}`)" if run.in_several_folders else "")
 
 
 def summary_markdown(boards: dict[str, TaskBoard], runs: Sequence[RunFile], references: Sequence[ReferenceRow],
@@ -620,12 +663,13 @@ def summary_markdown(boards: dict[str, TaskBoard], runs: Sequence[RunFile], refe
         best = board.runs[0] if board.runs else None
         rows.append([f"[`{task_id}`]({safe_name(task_id)}.md)",
                      str(len(board.runs)) + (f" (+{len(board.partial)} partial)" if board.partial else ""),
-                     f"`{best.tracker_id}`" if best else "—",
-                     (_with_ci(best.results["summary"].get("rmsae_all"), best.results["summary"].get("rmsae_all_ci95"))
+                     tracker_cell(best) if best else "—",
+                     (_file_ci(best.results, "rmsae_all")
                       if recording_mean(best.results) is None else
                       f"{_num(recording_mean(best.results))} (mean of recordings)") if best else "—",
                      str(len({r.method for r in board.references})) if board.references else "0"])
     lines += _table(["task", "doabench runs", "best (RMSAE all)", "RMSAE all [95% CI]", "published methods"], rows)
+    lines += _no_interval_legend(rows)
     lines += _locata_overall(boards)
     challenge = [(task_id, row) for task_id, board in boards.items()
                  for row in _locata_rows(board.runs[:1], {r.path: "" for r in board.runs[:1]})]

@@ -2,18 +2,21 @@
 task and ranked (the headline: mean of per-recording RMSAEs for LOCATA, else the pooled RMSAE).
 :mod:`doabench.reporting.leaderboard` renders them as Markdown and CSV.
 
-Only complete runs (every episode of the task) are ranked; partial runs (``--episodes N``,
-``--cells``) are kept apart with their coverage. One model is one row: a tracker named by an alias
-(``cross3d`` for ``cross3d:16x32``, results files written before ids were canonical) is shown
-under its canonical id, and of several files of one configuration (task version, tracker,
-options, weights, delays) only the most complete, then newest, is shown; the others are listed
-as superseded.
+Complete runs (every episode of the task) are ranked; partial runs (``--episodes N``,
+``--cells``) are ranked apart, among themselves, with their coverage (``36 of 360 episodes``), so
+a partial run never moves a complete run's rank. One model is one row per results folder: a
+tracker named by an alias (``cross3d`` for ``cross3d:16x32``, results files written before ids
+were canonical) is shown under its canonical id, and of several files of one configuration (task
+version, tracker, options, weights, delays) in one folder only the most complete, then newest, is
+shown; the others are listed as superseded.
 
-Several results folders are read together; one configuration with files in two of them is
-refused (which folder's file would be the row is an accident of the order they were given in).
-A JSON file in a folder that is not a results file this doabench reads (another tool's file, an
-unknown schema, a section the results JSON Schema requires missing or of the wrong type) is
-skipped, and named on standard error with the reason."""
+Several results folders are read together. One configuration with files in two of them is shown
+once per folder, each row labelled by its folder and its episode count (``RunFile.folder``,
+``RunFile.in_several_folders``): which of them is the better evidence is for the reader to judge,
+not an accident of the order the folders were given in. A JSON file in a folder that is not a
+results file this doabench reads (another tool's file, an unknown schema, a section the results
+JSON Schema requires missing or of the wrong type) is skipped, and named on standard error with
+the reason."""
 from __future__ import annotations
 
 import csv
@@ -21,7 +24,7 @@ import hashlib
 import io
 import math
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
@@ -37,11 +40,15 @@ RANK_METRIC = "rmsae_all"
 
 @dataclass(frozen=True)
 class RunFile:
-    """One results JSON: where it is (as shown in tables), its SHA-256 and its content."""
+    """One results JSON: where it is (as shown in tables), its SHA-256 and its content; the results
+    folder it was read from (as given, shown in tables), and whether a file of its configuration is
+    shown from another folder too (set by :func:`collect`: its rows then name their folders)."""
 
     path: str
     sha256: str
     results: dict[str, Any]
+    folder: str = ""
+    in_several_folders: bool = False
 
     @property
     def task_id(self) -> str:
@@ -75,8 +82,9 @@ class ReferenceRow:
 
 @dataclass
 class TaskBoard:
-    """What one task's table is built from: ``runs`` (complete, ranked), ``partial`` (listed apart,
-    unranked), ``superseded`` (``(file, the row's file)``: another file of the same configuration)."""
+    """What one task's table is built from: ``runs`` (complete, ranked), ``partial`` (ranked apart,
+    among themselves), ``superseded`` (``(file, the row's file)``: another file of the same
+    configuration in the same folder)."""
 
     task_id: str
     runs: list[RunFile] = field(default_factory=list)
@@ -97,6 +105,24 @@ def coverage(results: dict[str, Any]) -> str:
     text = f"{task.get('episodes_run')}/{task.get('episodes_total')} episodes"
     if task.get("cells_total"):
         text += f", {task.get('cells_run')}/{task['cells_total']} cells"
+    return text
+
+
+def episode_count(results: dict[str, Any]) -> str:
+    """How many episodes a run holds, as a row is marked: ``360 episodes`` for a complete run,
+    ``36 of 360 episodes`` for a partial one."""
+    task = results.get("task") or {}
+    if is_complete(results):
+        return f"{task.get('episodes_run')} episodes"
+    return f"{task.get('episodes_run')} of {task.get('episodes_total')} episodes"
+
+
+def partial_coverage(results: dict[str, Any]) -> str:
+    """A partial run's mark: ``36 of 360 episodes, 18 of 18 cells`` (cells where the file records them)."""
+    task = results.get("task") or {}
+    text = episode_count(results)
+    if task.get("cells_total"):
+        text += f", {task.get('cells_run')} of {task['cells_total']} cells"
     return text
 
 
@@ -134,21 +160,21 @@ def warn_skipped(message: str) -> None:
 
 def load_runs(folders: str | Path | Sequence[str | Path], warn: Callable[[str], None] = warn_skipped) -> list[RunFile]:
     """Every ``*.json`` results file in ``folders`` (one or several; each sorted by name, a folder
-    given twice read once). Other JSON files are skipped and named through ``warn`` with the reason
-    (:func:`doabench.results.schema.results_problem`); a file that is no JSON at all, a missing
-    folder and one configuration in two folders (:func:`refuse_shared_configurations`) raise InputError."""
+    given twice read once), each knowing its folder (``RunFile.folder``). Other JSON files are
+    skipped and named through ``warn`` with the reason
+    (:func:`doabench.results.schema.results_problem`); a file that is no JSON at all and a missing
+    folder raise InputError."""
     unique: dict[Path, Path] = {}
     for folder in [folders] if isinstance(folders, (str, Path)) else folders:
         unique.setdefault(Path(folder).resolve(), Path(folder))
-    per_folder = [_load_folder(folder, warn) for folder in unique.values()]
-    refuse_shared_configurations(per_folder)
-    return [run for runs in per_folder for run in runs]
+    return [run for folder in unique.values() for run in _load_folder(folder, warn)]
 
 
 def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
     """The results files of one folder, sorted by name (see :func:`load_runs`)."""
     if not folder.is_dir():
         raise InputError(f"results folder {folder} does not exist")
+    shown_folder = inert_text(display_path(folder))
     runs = []
     for path in sorted(folder.glob("*.json")):
         if path.name.startswith("."):  # doabench's own temporary files
@@ -167,20 +193,9 @@ def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
             warn(f"skipped {display_path(path)}: {problem}")
             continue
         # what the views show of a file (its name, its texts) is escaped (doabench.results.labels)
-        runs.append(RunFile(inert_text(display_path(path)), hashlib.sha256(data).hexdigest(), inert_texts(results)))
+        runs.append(RunFile(inert_text(display_path(path)), hashlib.sha256(data).hexdigest(), inert_texts(results),
+                            folder=shown_folder))
     return runs
-
-
-def refuse_shared_configurations(per_folder: Sequence[Sequence[RunFile]]) -> None:
-    """One line (InputError) when one configuration (:func:`configuration_key`) has files in two
-    of the folders (``per_folder``: each folder's runs): neither may silently supersede the other."""
-    seen: dict[tuple, tuple[int, RunFile]] = {}
-    for index, runs in enumerate(per_folder):
-        for run in runs:
-            first, other = seen.setdefault((run.task_id, configuration_key(run)), (index, run))
-            if first != index:
-                raise InputError(f"{other.path} and {run.path} are one configuration ({run.task_id}, {run.tracker_id}) "
-                                 "in two results folders; leave one of the files or folders out")
 
 
 def load_references(path: str | Path) -> list[ReferenceRow]:
@@ -220,15 +235,22 @@ def load_references(path: str | Path) -> list[ReferenceRow]:
 
 
 def collect(runs: Iterable[RunFile], references: Iterable[ReferenceRow] = ()) -> dict[str, TaskBoard]:
-    """Group runs and reference rows by task id (sorted); per task one file per configuration
-    (:func:`configuration_key`), complete runs ranked, partial ones apart."""
+    """Group runs and reference rows by task id (sorted); per task and results folder one file per
+    configuration (:func:`configuration_key`); a configuration shown from several folders has each
+    of its rows marked (``in_several_folders``). Complete runs are ranked, partial ones ranked
+    apart, each by :func:`headline`."""
     boards: dict[str, TaskBoard] = {}
     by_config: dict[tuple, list[RunFile]] = {}
     for run in runs:
         boards.setdefault(run.task_id, TaskBoard(run.task_id))
-        by_config.setdefault((run.task_id, configuration_key(run)), []).append(run)
-    for (task_id, _), group in by_config.items():
+        by_config.setdefault((run.task_id, configuration_key(run), run.folder), []).append(run)
+    folders: dict[tuple, set[str]] = {}
+    for task_id, key, folder in by_config:
+        folders.setdefault((task_id, key), set()).add(folder)
+    for (task_id, key, _), group in by_config.items():
         shown, *others = sorted(group, key=_preference)
+        if len(folders[(task_id, key)]) > 1:  # its rows say which folder and how many episodes each is
+            shown = replace(shown, in_several_folders=True)
         board = boards[task_id]
         (board.runs if shown.complete else board.partial).append(shown)
         board.superseded += [(other, shown) for other in others]
@@ -237,7 +259,7 @@ def collect(runs: Iterable[RunFile], references: Iterable[ReferenceRow] = ()) ->
             boards.setdefault(ref.task_id, TaskBoard(ref.task_id)).references.append(ref)
     for board in boards.values():
         board.runs.sort(key=_run_sort_key)
-        board.partial.sort(key=lambda r: (-int(r.results["task"].get("episodes_run") or 0),) + _run_sort_key(r))
+        board.partial.sort(key=_run_sort_key)
         board.superseded.sort(key=lambda pair: pair[0].path)
     return dict(sorted(boards.items()))
 

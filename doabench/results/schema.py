@@ -148,7 +148,9 @@ def summary_problem(results: Any) -> str | None:
     """Why the pooled RMSAEs of a results file's summary are not what its episode rows give, or None.
     A pooled RMS over frames is exact from the rows: ``sqrt(sum_i n_i rms_i^2 / sum_i n_i)`` over
     episodes ``i`` (``n_frames`` for ``rmsae_all``, ``n_nonsilent`` for ``rmsae_nonsilent``), so an
-    edited summary (a better number than the episodes give) is found."""
+    edited summary (a better number than the episodes give) is found. An interval (``*_ci95``) may
+    be ``null``, as a run whose episodes give none has it
+    (:func:`doabench.metrics.bootstrap_ci_from_sums`); one that is given must hold its pooled value."""
     summary, rows = results.get("summary"), results.get("episodes")
     if not isinstance(summary, dict):
         return None

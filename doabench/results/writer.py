@@ -12,6 +12,7 @@ import pandas as pd
 from doabench.errors import InputError
 from doabench.files import atomic_path, file_stem, write_json
 from doabench.results.identity import canonical_id, results_task_options, results_weights_name
+from doabench.results.intervals import NO_INTERVAL_NOTE, interval_text, shown_interval
 from doabench.results.labels import run_label
 from doabench.results.schema import read_json
 
@@ -205,8 +206,8 @@ def coverage_lines(results: Mapping[str, Any], written: str | Path | None = None
     """What ``doabench run`` prints after the scores: whether the run is full or partial, and the
     figure of the committed run of the same configuration (``committed``: a results folder,
     default :func:`committed_results_dir`) when there is one, complete and other than the file
-    just ``written``. A partial run is listed apart on the leaderboards, so its figure is not
-    comparable with the full-task one."""
+    just ``written``. A partial run is ranked apart from full runs on the leaderboards, so its
+    figure is not comparable with the full-task one."""
     from doabench.results.ranking import display_path
     from doabench.results.schema import summary_problem
 
@@ -215,8 +216,8 @@ def coverage_lines(results: Mapping[str, Any], written: str | Path | None = None
     full = bool(task.get("complete", run == total))
     lines = [f"full run: all {total} episodes of {task.get('id')} v{task.get('version')}, ranked on its leaderboard"
              if full else
-             f"partial run: {run} of {total} episodes of {task.get('id')} v{task.get('version')}, listed apart and "
-             "unranked on its leaderboard: its figures are not comparable with a full-task figure"]
+             f"partial run: {run} of {total} episodes of {task.get('id')} v{task.get('version')}, ranked apart "
+             "from full runs on its leaderboard: its figures are not comparable with a full-task figure"]
     path = results_path(results, committed_results_dir() if committed is None else committed)
     if not path.is_file() or (written is not None and Path(written).resolve() == path.resolve()):
         return lines
@@ -225,8 +226,9 @@ def coverage_lines(results: Mapping[str, Any], written: str | Path | None = None
         other = data.get("task") or {}
         same = results_configuration(data) == results_configuration(results) and bool(other.get("complete"))
         summary = data["summary"]
-        figure = (f"RMSAE all frames {float(summary['rmsae_all']):.2f} [{float(summary['rmsae_all_ci95'][0]):.2f}, "
-                  f"{float(summary['rmsae_all_ci95'][1]):.2f}] deg, voice-active {float(summary['rmsae_nonsilent']):.2f}")
+        figure = (f"RMSAE all frames {float(summary['rmsae_all']):.2f} "
+                  f"{interval_text(shown_interval(data, 'rmsae_all'))} deg, "
+                  f"voice-active {float(summary['rmsae_nonsilent']):.2f}")
         same = same and not summary_problem(data)
     except (OSError, InputError, ValueError, KeyError, TypeError, AttributeError, IndexError):
         return lines
@@ -243,10 +245,10 @@ def format_summary(results: dict[str, Any]) -> str:
         f"task {results['task']['id']} v{results['task']['version']} | tracker {run_label(results)} "
         f"| {results['task']['episodes_run']} episodes | causal: {str(results['causal']).lower()}",
         f"{'metric (pooled over frames)':<34}{'value':>10}",
-        f"{'RMSAE all frames [deg]':<34}{s['rmsae_all']:>10.2f}   95% CI [{s['rmsae_all_ci95'][0]:.2f}, "
-        f"{s['rmsae_all_ci95'][1]:.2f}]",
+        f"{'RMSAE all frames [deg]':<34}{s['rmsae_all']:>10.2f}   95% CI "
+        f"{interval_text(shown_interval(results, 'rmsae_all'))}",
         f"{'RMSAE non-silent frames [deg]':<34}{s['rmsae_nonsilent']:>10.2f}   95% CI "
-        f"[{s['rmsae_nonsilent_ci95'][0]:.2f}, {s['rmsae_nonsilent_ci95'][1]:.2f}]",
+        f"{interval_text(shown_interval(results, 'rmsae_nonsilent'))}",
         f"{'MAE non-silent [deg]':<34}{s['pooled']['mae']:>10.2f}",
         f"{'median / p90 non-silent [deg]':<34}{s['pooled']['median']:>10.2f} / {s['pooled']['p90']:.2f}",
         f"{'within 5/10/20/30 deg [%]':<34}" + " / ".join(
@@ -279,6 +281,8 @@ def format_summary(results: dict[str, Any]) -> str:
         notes.append("planar array: scored against mirror-folded truth")
     if notes:
         lines.append("scoring: " + "; ".join(notes))
+    if shown_interval(results, "rmsae_all") is None or shown_interval(results, "rmsae_nonsilent") is None:
+        lines.append(f"95% CI n/a: {NO_INTERVAL_NOTE}")
     if results.get("cells"):
         lines.append(f"{'cell':<28}{'RMSAE all':>10}{'non-silent':>12}")
         for cell, c in results["cells"].items():

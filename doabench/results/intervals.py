@@ -1,0 +1,68 @@
+"""The 95 % interval a view prints for one results file: its summary's, or one grid cell's.
+
+A results file's interval is a bootstrap over its own episodes. With fewer than
+:data:`doabench.metrics.MIN_INTERVAL_EPISODES` episodes that have scored frames, or with every
+resample giving the same value although the episodes differ, that bootstrap says nothing about the
+spread, and the file holds ``null`` (:func:`doabench.metrics.bootstrap_ci_from_sums`). Files
+written before that rule hold an interval of no or next to no width there; :func:`shown_interval`
+reads them by the same rule (:func:`doabench.metrics.defined_interval`), so every view (the
+leaderboards, ``doabench run``'s summary) prints no interval for them either.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from doabench.metrics import MIN_INTERVAL_EPISODES, defined_interval
+
+#: the per-episode frame count each pooled RMSAE is weighted by (a row's ``n_frames`` or ``n_nonsilent``)
+FRAME_COUNTS = {"rmsae_all": "n_frames", "rmsae_nonsilent": "n_nonsilent"}
+#: what a view prints in place of an interval the episodes do not give
+NO_INTERVAL = "n/a"
+#: why a view shows :data:`NO_INTERVAL` (its legend under a table or a summary that shows one)
+NO_INTERVAL_NOTE = (f"fewer than {MIN_INTERVAL_EPISODES} episodes with scored frames, or every bootstrap resample "
+                    "gave the same value although the episodes differ")
+
+
+def shown_interval(results: Mapping[str, Any], metric: str, cell: str | None = None) -> tuple[float, float] | None:
+    """The 95 % interval of ``metric`` (``rmsae_all`` or ``rmsae_nonsilent``) of a results file,
+    of its summary or of grid cell ``cell`` (a cell id of ``results["cells"]``), as ``(low, high)``;
+    None where the file holds none or its episodes do not back one
+    (:func:`doabench.metrics.defined_interval`). The episodes of a cell are the rows whose ``task``
+    is the cell's id; a file whose rows do not say so is judged by the cell's ``n_episodes``."""
+    if cell is None:
+        part = results.get("summary")
+        rows = [row for row in results.get("episodes") or [] if isinstance(row, Mapping)]
+    else:
+        part = (results.get("cells") or {}).get(cell)
+        rows = [row for row in results.get("episodes") or [] if isinstance(row, Mapping) and row.get("task") == cell]
+    if not isinstance(part, Mapping):
+        return None
+    stored = part.get(f"{metric}_ci95")
+    episodes = _episode_values(rows, metric) if rows or cell is None else None
+    if episodes is None:
+        # rows that cannot be read: the episode count alone decides (as if each had frames and differed)
+        try:
+            count = int(part.get("n_episodes", len(rows)) if cell is not None else len(rows))
+        except (TypeError, ValueError):
+            return None
+        episodes = [float(i) for i in range(count)], [1.0] * count
+    return defined_interval(*episodes, stored)
+
+
+def _episode_values(rows: list[Mapping[str, Any]], metric: str) -> tuple[list[float], list[float]] | None:
+    """Each row's ``metric`` and its frame count, or None when some row lacks them."""
+    count_key = FRAME_COUNTS.get(metric)
+    values, frames = [], []
+    for row in rows:
+        value, n = row.get(metric), row.get(count_key) if count_key else None
+        if isinstance(n, bool) or not isinstance(n, (int, float)) or not (
+                value is None or (isinstance(value, (int, float)) and not isinstance(value, bool))):
+            return None
+        values.append(float("nan") if value is None else float(value))
+        frames.append(float(n))
+    return values, frames
+
+
+def interval_text(interval: tuple[float, float] | None) -> str:
+    """``[low, high]`` with two decimals, or ``n/a`` (:data:`NO_INTERVAL`) for no interval."""
+    return NO_INTERVAL if interval is None else f"[{interval[0]:.2f}, {interval[1]:.2f}]"
