@@ -105,7 +105,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     from doabench.envs.registry import get_task_spec, task_reference
     from doabench.ray_support import check_engine, require_ray
     from doabench.results.writer import check_overwrite
-    from doabench.runner.selection import select_episodes
+    from doabench.envs.selection import select_episodes
     from doabench.trackers.registry import make_tracker
 
     check_engine(engine)

@@ -408,3 +408,89 @@ def test_journal_parts_of_another_config_are_not_reused(task_dir, tmp_path, dama
             assert stored == {"gcc"}, (name, stored)
     with DatasetFile(out) as f:
         assert f.items == ["gcc"]
+
+
+GRID = "ds-grid-tiny-test"
+# 6 cells (T60 x SNR) of 2 episodes each, 1 s scenes: the smallest grid to spread episodes over.
+GRID_TOML = f"""
+id = "{GRID}"
+version = 1
+kind = "simulated"
+base_seed = 4242
+[grid]
+t60 = [0.2, 0.3]
+snr = [10.0, 20.0, 30.0]
+episodes_per_cell = 2
+cell_id = "{GRID}-t60-{{t60}}-snr-{{snr}}"
+[speech]
+corpus = "embedded"
+[scene]
+duration_s = 1.0
+n_points = 8
+room_max = [5.0, 5.0, 3.0]
+"""
+
+
+@pytest.fixture(scope="module")
+def grid_task(tmp_path_factory) -> str:
+    folder = tmp_path_factory.mktemp("grid")
+    (folder / f"{GRID}.toml").write_text(GRID_TOML)
+    doabench.register_task(folder / f"{GRID}.toml")
+    return GRID
+
+
+def test_episodes_spread_over_a_grids_cells_as_run_takes_them(grid_task, tmp_path, capsys):
+    """``make-dataset --episodes N`` on a grid takes run's selection (once the first N, all from the
+    first cells), says so before it starts, records it, and its shards split that selection."""
+    from doabench.envs.selection import select_episodes
+
+    out = tmp_path / "g.h5"
+    assert main(["make-dataset", "--task", grid_task, "--episodes", "4", "--features", "srp:4x8", "--out", str(out),
+                 "--quiet"]) == 0
+    said = capsys.readouterr().out
+    assert said.startswith(f"{grid_task}: 4 of 12 episodes, spread over the 6 cells (one each from 4 of them)\n"), said
+    expected = select_episodes(doabench.get_task_spec(grid_task), 12, 4)[0]
+    assert expected == [0, 4, 6, 10]
+    with DatasetFile(out) as f:
+        assert f.indices == f.requested == expected and f.config["selection"] == "stratified"
+    shards = [tmp_path / "s1.h5", tmp_path / "s2.h5"]
+    for k, path in enumerate(shards, start=1):
+        make_dataset(grid_task, path, episodes=4, features="srp:4x8", shard=(k, 2), progress=False)
+    with DatasetFile(shards[0]) as a, DatasetFile(shards[1]) as b:
+        assert a.indices == [0, 6] and b.indices == [4, 10]
+    merge_datasets(shards, tmp_path / "merged.h5")
+    assert_same_episodes(out, tmp_path / "merged.h5")
+
+
+def test_a_dataset_begun_with_a_grids_first_episodes_keeps_them(grid_task, tmp_path, monkeypatch):
+    """A dataset begun when ``--episodes N`` took a grid's first N (its config has no
+    ``selection``) resumes to those episodes and is found complete as it was made, with a note; a
+    new output spreads them."""
+    import doabench.datasets.generate as generate
+    from doabench.envs.selection import select_episodes
+
+    def first_n(spec, total, episodes=None, cells=None):  # the rule make-dataset followed before
+        return list(range(episodes)), {"rule": "first", "episodes": episodes, "cells": None}
+
+    def stop(index):  # dies after its first episode, leaving the journal behind
+        raise KeyboardInterrupt
+
+    out = tmp_path / "old.h5"
+    with monkeypatch.context() as patch:
+        patch.setattr(generate, "select_episodes", first_n)
+        with pytest.raises(KeyboardInterrupt):
+            make_dataset(grid_task, out, episodes=3, features="srp:4x8", progress=stop)
+    assert "selection" not in json.loads((parts_dir(out) / "config.json").read_text())
+    said: list[str] = []
+    resumed = make_dataset(grid_task, out, episodes=3, features="srp:4x8", progress=False, say=said.append)
+    assert said == [f"{grid_task}: the first 3 of 12 episodes ({out} was begun with them, before --episodes spread "
+                    "over a grid's cells: it keeps them; a new --out spreads them)"]
+    assert (resumed.resumed, resumed.computed) == (1, 2)
+    with DatasetFile(out) as f:
+        assert f.indices == [0, 1, 2] and "selection" not in f.config
+    assert make_dataset(grid_task, out, episodes=3, features="srp:4x8", progress=False, say=said.append).already_complete
+    assert "it keeps them" in said[-1]
+    new = tmp_path / "new.h5"
+    make_dataset(grid_task, new, episodes=3, features="srp:4x8", progress=False)
+    with DatasetFile(new) as f:
+        assert f.indices == select_episodes(doabench.get_task_spec(grid_task), 12, 3)[0] == [2, 6, 10]

@@ -15,7 +15,7 @@ from doabench.cli.main import build_parser, main
 from doabench.envs.registry import get_task_spec
 from doabench.errors import ConfigError
 from doabench.reporting.leaderboard import build_leaderboards
-from doabench.runner.selection import select_episodes
+from doabench.envs.selection import select_episodes
 from test_leaderboard import _results
 
 

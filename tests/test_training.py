@@ -646,3 +646,74 @@ def test_a_warm_start_from_other_weights_is_refused_before_training(tmp_path, ca
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_training_on_a_benchmark_tasks_dataset_is_warned_about(tmp_path, monkeypatch, capsys):
+    """``train --dataset`` says in one line that a dataset of a benchmark task (one that scores
+    trackers) makes the model's scores there meaningless; a training task's dataset is not warned about."""
+    import h5py
+
+    from doabench.cli.main import main
+    from doabench.datasets import make_dataset
+    from doabench.training import trainer as trainer_module
+
+    class NoTraining:  # what happens after the warning is not this test's business
+        def __init__(self, options, log=print):
+            pass
+
+        def stop_note(self):
+            return ""
+
+        def run(self):
+            return []
+
+    monkeypatch.setattr(trainer_module, "Trainer", NoTraining)
+    (tmp_path / "t.toml").write_text(
+        'id = "bench-ds-test"\nversion = 0\nkind = "simulated"\nepisodes = 1\nbase_seed = 6\n[speech]\n'
+        'corpus = "embedded"\n[scene]\nduration_s = 1.0\nn_points = 4\nt60 = [0.2, 0.3]\nroom_max = [5.0, 5.0, 3.0]\n')
+    doabench.register_task(tmp_path / "t.toml")
+    bench = tmp_path / "bench.h5"
+    make_dataset("bench-ds-test", bench, features="srp:4x8", progress=False)
+    argv = ["train", "--tracker", "cross3d:4x8", "--tracker-opt", "weights=random", "--out", str(tmp_path / "run"),
+            "--no-compile", "--quiet", "--dataset"]
+    capsys.readouterr()
+    assert main([*argv, str(bench)]) == 0
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith(f"doabench train: warning: {bench} holds episodes of bench-ds-test, "
+                                              "a benchmark task"), err
+    assert "makes this model's scores on bench-ds-test meaningless" in err
+    training = tmp_path / "training.h5"
+    training.write_bytes(bench.read_bytes())
+    with h5py.File(training, "r+") as f:  # the same file as a training task's (train-clean-100 speech)
+        spec = json.loads(f.attrs["task_spec"])
+        spec["id"], spec["params"]["speech"] = "sim-train", {"corpus": "librispeech", "subset": "train-clean-100"}
+        f.attrs["task_spec"] = json.dumps(spec)
+    assert main([*argv, str(training)]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_a_validation_cache_says_where_and_how_big_before_it_is_built(tmp_path):
+    from doabench.training.pipeline import ensure_cache
+
+    (tmp_path / "t.toml").write_text(
+        'id = "valcache-test"\nversion = 0\nkind = "simulated"\nepisodes = 1\nbase_seed = 8\n[speech]\n'
+        'corpus = "embedded"\n[scene]\nduration_s = 1.0\nn_points = 4\nt60 = [0.2, 0.3]\nroom_max = [5.0, 5.0, 3.0]\n')
+    doabench.register_task(tmp_path / "t.toml")
+    spec = doabench.get_task_spec("valcache-test")
+    recipe = paper_recipe().replace(duration_s=1.0)
+    logged: list[tuple[str, int]] = []  # each line with the number of items cached when it was said
+
+    def log(line: str) -> None:
+        logged.append((line, len(list((tmp_path / "cache").rglob("*.npz")))))
+
+    folder = ensure_cache(tmp_path / "cache", spec, recipe, "val", 2, None, "builtin", log)
+    first, cached = logged[0]
+    assert cached == 0 and first.startswith(f"building the validation cache in {folder}: 2 trajectories of 1 s"), first
+    import re
+
+    sizes = sum(p.stat().st_size for p in folder.glob("*.npz"))
+    said = re.search(r"about ([0-9.]+) MB on disk", first)
+    assert said is not None and abs(float(said.group(1)) * 1e6 / sizes - 1) < 0.05, (first, sizes)
+    logged.clear()
+    ensure_cache(tmp_path / "cache", spec, recipe, "val", 3, None, "builtin", log)
+    assert logged[0][0].startswith(f"building the validation cache in {folder}: 1 of 3 trajectories"), logged

@@ -38,7 +38,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 from doabench.acoustics.rir_model import SINC_HALF
 from doabench.acoustics.room import diffuse_start, max_time
@@ -46,7 +46,7 @@ from doabench.errors import ConfigError
 from doabench.geometry import SPEED_OF_SOUND
 
 if TYPE_CHECKING:
-    from doabench.acoustics.scenes import SceneDistribution
+    from doabench.acoustics.scenes import Scene, SceneDistribution
 
 # Bytes per candidate image of enumerate_images: its three int64 index grids plus the float64
 # temporaries of the pruning, then the kept images' float64 arrays.
@@ -122,6 +122,18 @@ def pra_full_order(dims: tuple[float, float, float], t60: float) -> float:
     return max(0.0, math.ceil(SPEED_OF_SOUND * t / radius - 1.0))
 
 
+def _pra_order(dims: tuple[float, float, float], horizon_m: float) -> float:
+    """The reflection order the ``pyroomacoustics`` backend asks for the images within reach of
+    Tdiff (``horizon_m``): along each axis an image ``d`` metres away reflects about ``d / L``
+    times (plus the room's own span)."""
+    return horizon_m * math.sqrt(sum(1.0 / length**2 for length in dims)) + 9.0
+
+
+def _horizon_m(t60: float, fs: int) -> float:
+    """How far the image sources of the responses' early part reach, in metres."""
+    return (diffuse_start(t60) * fs + SINC_HALF) / fs * SPEED_OF_SOUND
+
+
 def _pra_image_bytes(order: float, n_mics: int, sources_per_room: int) -> float:
     return octahedral_images(order) * sources_per_room * (_PRA_IMAGE_BYTES + _PRA_IMAGE_BYTES_PER_MIC * n_mics)
 
@@ -132,7 +144,7 @@ def simulation_bytes(dims: tuple[float, float, float], t60: float, n_mics: int, 
     room of ``dims`` metres with ``t60`` seconds of reverberation, ``n_mics`` microphones, a
     trajectory of ``n_points`` points and ``duration_s`` seconds of audio at ``fs`` Hz."""
     n_taps = max_time(t60) * fs
-    horizon_m = (diffuse_start(t60) * fs + SINC_HALF) / fs * SPEED_OF_SOUND
+    horizon_m = _horizon_m(t60, fs)
     # Each point's response is convolved with its segment zero-padded to a common FFT length, so
     # the points' responses also hold the samples of the whole signal once.
     per_sample = _SAMPLE_BYTES_PER_MIC * n_mics + _SAMPLE_BYTES + _TAP_BYTES * n_mics
@@ -140,9 +152,7 @@ def simulation_bytes(dims: tuple[float, float, float], t60: float, n_mics: int, 
     builtin_images = _IMAGE_BYTES * image_candidates(dims, horizon_m) + _TAIL_BYTES_PER_TAP * n_mics * n_taps
     responses = _TAP_BYTES * n_mics * n_points * n_taps
     if backend == "pyroomacoustics":
-        # pyroomacoustics' order for the images within reach of Tdiff: along each axis an image
-        # ``d`` metres away reflects about ``d / L`` times (plus the room's own span)
-        order = horizon_m * math.sqrt(sum(1.0 / length**2 for length in dims)) + 9.0
+        order = _pra_order(dims, horizon_m)
         sources = max(1, min(n_points, _PRA_SOURCES_PER_ROOM))
         return SimulationCost(builtin_images + _pra_image_bytes(order, n_mics, sources), responses, signals)
     if backend == "pyroomacoustics-full":
@@ -233,3 +243,145 @@ def check_fits(dist: SceneDistribution, n_mics: int, fields: Mapping[str, str] |
               f"{dist.n_points} trajectory points, {dist.duration_s:.3g} s of audio")
     raise ConfigError(f"{_field(dist, cost, names)}: simulating a scene needs {_estimate(cost.total)} of memory "
                       f"({detail}), more than the {_gib(available)} of this machine")
+
+
+# -- time ------------------------------------------------------------------------------------------
+# What simulating a scene costs in time is not bounded (a torchrir scene at T60 5 s fits in memory
+# and takes hours), but a job whose engine takes more than SLOW_SCENE_S a scene says so, with its
+# estimate, before it starts. The model: seconds of one CPU thread per image source, microphone and
+# trajectory point, each engine counting its images as its memory estimate does
+# (:func:`engine_images`), plus the per-sample work every engine shares (convolutions, the tail).
+# Calibrated from process CPU times of one thread on an AMD EPYC core rendering scenes 1000 and 1001
+# of the paper's distribution (rooms 6.8 x 5.7 x 6.0 m at T60 0.84 s and 5.8 x 6.8 x 2.8 m at
+# T60 1.21 s; 12 microphones, 4 trajectory points, beside a training run): pyroomacoustics-full
+# 0.85 and 12.4 s (1.3e-7 and 1.5e-7 s a unit), torchrir 0.62 and 3.0 s (1.4e-6, 1.2e-6),
+# pyroomacoustics 0.08 and 0.45 s (7.1e-8, 7.8e-8); and from docs/performance.md's 156-point
+# timings on an idle machine (pyroomacoustics-full 31.3 s at T60 0.84 s: 1.25e-7; torchrir 47.5 s
+# over scenes 1000-1002: 1.1e-6; builtin 0.2 s, 47 % of it image sources: 1.1e-9 a candidate image,
+# the rest 3e-8 s a sample and microphone). Within a factor of 2 of what was measured; threads,
+# another CPU or a GPU change it.
+_SECONDS_PER_IMAGE = {"builtin": 1.1e-9, "pyroomacoustics": 7.5e-8, "pyroomacoustics-full": 1.4e-7,
+                      "torchrir": 1.3e-6}
+_SECONDS_PER_SAMPLE_PER_MIC = 3e-8
+#: an engine slower than this per scene (seconds) says how long a job will take before it starts
+SLOW_SCENE_S = 60.0
+
+
+def engine_images(dims: tuple[float, float, float], t60: float, fs: int, backend: str) -> float | None:
+    """Image sources the engine ``backend`` computes for one point of a room of ``dims`` metres at
+    ``t60`` (None for an engine the model does not know: gpuRIR, a plug-in): the builtin's
+    candidates within reach of Tdiff, pyroomacoustics' octahedron of the order of Tdiff,
+    pyroomacoustics-full's of its ``inverse_sabine`` order at Tmax, torchrir's image grid of Tdiff
+    (``2 ceil(c Tdiff / L) + 1`` per axis)."""
+    if t60 <= 0:
+        return 1.0
+    if backend == "builtin":
+        return image_candidates(dims, _horizon_m(t60, fs))
+    if backend == "pyroomacoustics":
+        return octahedral_images(_pra_order(dims, _horizon_m(t60, fs)))
+    if backend == "pyroomacoustics-full":
+        return octahedral_images(pra_full_order(dims, t60))
+    if backend == "torchrir":
+        reach = SPEED_OF_SOUND * diffuse_start(t60)
+        return math.prod(2.0 * math.ceil(reach / length) + 1.0 if math.isfinite(reach / length) else math.inf
+                         for length in dims)
+    return None
+
+
+def simulation_seconds(dims: tuple[float, float, float], t60: float, n_mics: int, n_points: float,
+                       duration_s: float, fs: int, backend: str = "builtin") -> float | None:
+    """Rough seconds of one CPU thread that simulating one scene takes on the engine ``backend``
+    (the model above; None for an engine it does not know), for the sizes of
+    :func:`simulation_bytes`."""
+    images = engine_images(dims, t60, fs, backend)
+    if images is None:
+        return None
+    return (_SECONDS_PER_IMAGE[backend] * images * n_mics * n_points
+            + _SECONDS_PER_SAMPLE_PER_MIC * duration_s * fs * n_mics)
+
+
+@dataclass(frozen=True)
+class SceneTime:
+    """Rough seconds of one CPU thread per scene a distribution draws on an engine: ``mean`` over
+    its rooms, T60s and static or moving talkers, ``worst`` its costliest scene (the smallest room at
+    the highest T60, a moving talker)."""
+
+    engine: str
+    mean: float
+    worst: float
+
+
+def scene_time(dist: SceneDistribution, n_mics: int, backend: str = "builtin") -> SceneTime | None:
+    """:class:`SceneTime` of ``dist`` on ``backend`` (None for an engine the model does not know).
+    The mean is taken over 64 fixed draws of the room and the T60 (uniform in their ranges, as the
+    scenes draw them), with the talker's points weighted by how often a scene moves (a static
+    talker heard by a static array is one point)."""
+    import numpy as np
+
+    worst = simulation_seconds(dist.room_min, dist.t60[1], n_mics, dist.n_points, dist.duration_s, dist.fs, backend)
+    if worst is None:
+        return None
+    p_moving = 1.0 - dist.p_static * (1.0 - dist.walk_p) * (1.0 - dist.array_motion_p)
+    points = p_moving * dist.n_points + (1.0 - p_moving)
+    draws = np.random.default_rng(0).uniform(size=(64, 4))
+    low, high = np.asarray(dist.room_min, float), np.asarray(dist.room_max, float)
+    total = 0.0
+    for u in draws:
+        x, y, z = (float(v) for v in low + u[:3] * (high - low))
+        dims = (x, y, z)
+        t60 = dist.t60[0] + float(u[3]) * (dist.t60[1] - dist.t60[0])
+        total += simulation_seconds(dims, t60, n_mics, points, dist.duration_s, dist.fs, backend) or 0.0
+    return SceneTime(backend, total / len(draws), worst)
+
+
+def _duration(seconds: float) -> str:
+    """``40 s``, ``2.3 min``, ``5.1 h``, ``3.2 days``."""
+    if not math.isfinite(seconds):
+        return "longer than anyone can wait"
+    if seconds >= 1.5 * 86400.0:
+        return f"{seconds / 86400.0:.2g} days"
+    if seconds >= 1.5 * 3600.0:
+        return f"{seconds / 3600.0:.2g} h"
+    if seconds >= 60.0:
+        return f"{seconds / 60.0:.2g} min"
+    return f"{seconds:.0f} s"
+
+
+def time_note(engine: str, scene_seconds: Sequence[float], worst: float | None = None, workers: int = 1,
+              what: str = "episode", group: str | None = None) -> str | None:
+    """One line saying how long a job of these scenes takes on ``engine`` when its scenes take
+    more than :data:`SLOW_SCENE_S` on average (None otherwise): ``scene_seconds`` are the
+    estimates of the scenes still to simulate, ``worst`` the costliest scene's, ``workers`` the
+    processes that share them, ``what`` names a scene (``episode``, ``trajectory``) and ``group``
+    what the scenes make up (``an epoch``: "about 3 h for an epoch of 585 trajectories")."""
+    if not scene_seconds:
+        return None
+    n = len(scene_seconds)
+    total = float(sum(scene_seconds))
+    mean = total / n
+    if not mean > SLOW_SCENE_S:
+        return None
+    plural = what[:-1] + "ies" if what.endswith("y") else what + "s"
+    scenes = f"{n} {plural}" if n > 1 else f"this {what}"
+    job = f"about {_duration(total)} for " + (f"{group} of {scenes}" if group else
+                                              scenes if n == 1 else f"these {scenes}")
+    if workers > 1 and n > 1:
+        job += f" ({_duration(total / workers)} with {workers} workers)"
+    each = ""
+    if n > 1:
+        upto = f", up to {_duration(worst)} for its costliest scene" if worst is not None and worst > 1.5 * mean else ""
+        each = f"about {_duration(mean)} a{'n' if what[0] in 'aeiou' else ''} {what}{upto}; "
+    return (f"note: the {engine} engine is slow here: {each}{job} (a rough estimate from its image sources, "
+            "for one CPU thread; stop with Ctrl-C)")
+
+
+def drawn_scene_note(scene: Scene, backend: str, device: str | None = None) -> str | None:
+    """:func:`time_note` of one drawn ``scene`` on ``backend`` (``simulate``): its own room, T60
+    and points; None when it takes less than a minute, on a GPU or on an engine the model does not
+    know."""
+    if device is not None and not str(device).startswith("cpu"):
+        return None
+    points = len(scene.trajectory) if scene.moving_array else len(scene.source_positions)
+    seconds = simulation_seconds(scene.room.dims, scene.room.t60, len(scene.mic_positions), points,
+                                 scene.duration_s, scene.fs, backend)
+    return None if seconds is None else time_note(backend, [seconds], what="scene")

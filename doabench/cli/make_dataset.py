@@ -9,16 +9,20 @@ from doabench.cli.common import add_corpus_options, corpus_kwargs
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "make-dataset", help="generate an HDF5 dataset of a task's episodes (features, truth, scenes)",
-        description="Simulate a task's first N episodes and store their features, per-frame truth, VAD and scene "
+        description="Simulate N episodes of a task and store their features, per-frame truth, VAD and scene "
                     "parameters in one HDF5 file (schema doabench.dataset/1, docs/hdf5-schema.md). Episode i is the "
                     "same whatever N, --shard or --workers. Killed at any moment, the same command resumes from "
                     "the journal folder <out>.parts/.")
     p.add_argument("--task", required=True, help="task id (doabench list tasks), e.g. sim-train")
-    p.add_argument("--episodes", type=int, help="generate episodes 0..N-1 (default: all of the task's)")
+    p.add_argument("--episodes", type=int,
+                   help="generate N episodes (default: all of the task's), taken as `doabench run --episodes N` "
+                        "takes them: on a grid task spread over its cells (the first episode of every cell in turn, "
+                        "then the second, ...), else the first N. It says which before it starts")
     p.add_argument("--features", default="srp:16x32",
                    help="comma-separated: srp:NxM (several resolutions allowed; stores srp_max too), gcc, "
                         "spectrogram, audio or a plug-in's feature kind (default srp:16x32)")
-    p.add_argument("--shard", help="K/N: only episodes i with i %% N == K-1 (for cluster array jobs)")
+    p.add_argument("--shard", help="K/N: only every N-th of the episodes taken, from the K-th on (for cluster array "
+                                   "jobs; without --episodes, episodes i with i %% N == K-1)")
     p.add_argument("--workers", type=int,
                    help="simulation processes (default 1); with --engine ray: Ray workers (default: 1 on a local "
                         "instance, every CPU of the cluster with --ray-address)")
@@ -59,7 +63,7 @@ def main(args: argparse.Namespace) -> int:
                           shard=parse_shard(args.shard), workers=workers, float16=args.float16,
                           sample_vad=args.sample_vad, compression=args.compression, delays=args.delays,
                           device=args.device, backend=backend, progress=not args.quiet, engine=args.engine,
-                          ray_address=args.ray_address, **options)
+                          ray_address=args.ray_address, say=print, **options)
     size = result.size
     if result.already_complete:
         print(f"{result.path} is already complete ({result.n_episodes} episodes); nothing to do")

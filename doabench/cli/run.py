@@ -56,7 +56,7 @@ def main(args: argparse.Namespace) -> int:
     from doabench.results.writer import (alias_files, check_overwrite, coverage_lines, format_summary, weights_line,
                                          write_results)
     from doabench.runner import RunSpec
-    from doabench.runner.selection import parse_cells, select_episodes
+    from doabench.envs.selection import parse_cells, select_episodes
     from doabench.trackers.registry import parse_options
 
     check_output_folder(args.out)  # before the work, not after it

@@ -18,6 +18,7 @@ import json
 import math
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -243,7 +244,7 @@ def _publish(tmp: Path, out: Path, force: bool) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from doabench._version import __version__
-    from doabench.acoustics.budget import check_fits
+    from doabench.acoustics.budget import check_fits, drawn_scene_note
     from doabench.acoustics.render import render_scene
     from doabench.acoustics.scenes import sample_scene
     from doabench.acoustics.simulators import get_simulator
@@ -263,6 +264,8 @@ def main(args: argparse.Namespace) -> int:
         array = get_array(array_name)
         check_fits(dist, array.n_mics, memory_fields(args), simulator.name)  # before the scene is drawn
         scene = sample_scene(dist, seed, source, array=array)
+    if note := drawn_scene_note(scene, simulator.name, args.device):  # a slow engine says so before it starts
+        print(note, file=sys.stderr, flush=True)
     episode = render_scene(scene, source, array, simulator=simulator, device=args.device)
     meta = episode.metadata
     info = {"doabench_version": __version__, "task": args.task, "episode": args.episode, "seed": scene.seed,

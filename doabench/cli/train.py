@@ -7,6 +7,7 @@ possibly in a second process while training runs). See docs/training.md.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="room simulator: builtin, pyroomacoustics, pyroomacoustics-full, torchrir or gpurir")
     p.add_argument("--cache-root", default="runs/cache", help="folder of trajectory caches (default: runs/cache)")
     p.add_argument("--dataset", metavar="FILE",
-                   help="train from a dataset file made by `doabench make-dataset` (stored features) instead")
+                   help="train from a dataset file made by `doabench make-dataset` (stored features) instead; one "
+                        "made from a benchmark task (not a training task such as sim-train) is used with a warning")
     p.add_argument("--build-cache", action="store_true",
                    help="only simulate the missing validation and training cache items, then exit; the cpu "
                         "preset needs this step first (it can run in a second process while training uses "
@@ -131,6 +133,24 @@ def parse_learning_rates(text: str, n_phases: int) -> list[float]:
     return rates
 
 
+def benchmark_dataset_warning(path: Path) -> str | None:
+    """One warning line when the dataset file ``path`` holds episodes of a benchmark task (one that
+    scores trackers, :func:`~doabench.envs.spec.is_training_task`), None for a training task's: a
+    model trained on a task's episodes has seen its test data there, so its scores on it measure
+    memory, not tracking. An unreadable file is the reader's one-line error."""
+    from doabench.datasets import DatasetFile
+    from doabench.envs.spec import is_training_task
+
+    with DatasetFile(path) as dataset:
+        task = dataset.task_spec or {"id": dataset.task_id}
+    if is_training_task(task):
+        return None
+    task_id = task.get("id") or "its task"
+    return (f"doabench train: warning: {path} holds episodes of {task_id}, a benchmark task: training on a "
+            f"benchmark task's episodes makes this model's scores on {task_id} meaningless (make the dataset "
+            "from a training task, e.g. --task sim-train)")
+
+
 def main(args: argparse.Namespace) -> int:
     from doabench.trackers.registry import make_tracker, parse_options
     from doabench.training.protocol import check_trainable
@@ -158,6 +178,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
         return 0
     check_trainable(make_tracker(args.tracker, **options), args.tracker)  # fail fast, one line
+    if args.dataset and (warning := benchmark_dataset_warning(Path(args.dataset))):
+        print(warning, file=sys.stderr, flush=True)
     from doabench.training.trainer import TrainOptions, Trainer
 
     recipe = build_recipe(args)

@@ -39,15 +39,21 @@ import numpy as np
 from doabench.datasets.layout import EpisodeRecord, is_complete, write_episode, write_part  # noqa: F401
 from doabench.datasets.schema import (
     COMPRESSIONS, EPISODES, SCHEMA, FeatureRequest, describe_dataset, dumps, episode_name, feature_names, open_h5,
-    parse_features, shard_indices,
+    parse_features, shard_of,
 )
 from doabench.envs.registry import get_task_spec
+from doabench.envs.selection import describe_selection, select_episodes
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, InputError
 from doabench.files import atomic_path, exclusive_lock, resolve_output
 
 # Config keys that may differ between shards of one dataset (see merge).
 SHARD_KEYS = ("episodes", "shard")
+# Config keys that say which episodes a dataset takes, not what an episode holds: episode i is the
+# same whatever they are, so a journal part is reused across them. ``selection`` is "stratified"
+# where --episodes N spreads over a grid's cells (absent where the first N are taken, as datasets
+# made before that rule took them).
+SELECTION_KEYS = SHARD_KEYS + ("selection",)
 # Source options that only say where a corpus lives; they do not change the episodes.
 PATH_OPTIONS = ("librispeech", "locata_root")
 
@@ -116,10 +122,10 @@ def journal_lock(folder: Path) -> Iterator[None]:
 
 def part_tag(config: dict[str, Any]) -> str:
     """The configuration a journal part was made with, as a hash: every key that changes an
-    episode's content (the shard and episode count do not)."""
+    episode's content (the shard, the episode count and their selection do not)."""
     import hashlib
 
-    content = {k: v for k, v in config.items() if k not in SHARD_KEYS}
+    content = {k: v for k, v in config.items() if k not in SELECTION_KEYS}
     return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -196,15 +202,19 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
                  workers: int | None = 1, float16: bool = False, sample_vad: bool = False, compression: str = "gzip",
                  delays: str = "nearest", device: str | None = None, backend: str = "builtin",
                  progress: bool | Callable[[int], None] = True, engine: str = "local",
-                 ray_address: str | None = None, **source_options: Any) -> GenerationResult:
-    """Generate (or resume) dataset ``out`` with the first ``episodes`` episodes of ``task``.
+                 ray_address: str | None = None, say: Callable[[str], None] | None = None,
+                 **source_options: Any) -> GenerationResult:
+    """Generate (or resume) dataset ``out`` with ``episodes`` episodes of ``task``, taken as
+    ``doabench run`` takes them (:func:`dataset_selection`: a grid's spread over its cells, else
+    the first N).
 
-    ``shard=(k, n)`` keeps the episodes ``i % n == k - 1``; ``workers`` processes simulate in
+    ``shard=(k, n)`` keeps every ``n``-th of those from the ``k``-th on; ``workers`` processes simulate in
     parallel; ``source_options`` (``librispeech``, ...) go to the task's episode source.
     ``progress``: a tqdm bar (True), none (False) or a callback called with each finished index.
     ``engine="ray"``: the episodes run as Ray tasks (:mod:`.ray_engine`) on the cluster at
     ``ray_address`` or on a local Ray instance with ``workers`` CPUs; ``workers=None`` there means
-    every CPU of the cluster. The file is the same whatever the engine.
+    every CPU of the cluster. The file is the same whatever the engine. ``say`` is given a line
+    saying which episodes the run takes before it starts (``doabench make-dataset`` prints it).
     """
     start = time.perf_counter()
     from doabench.ray_support import check_engine, require_ray
@@ -224,9 +234,9 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
         return _make_into_stream(out, task, dict(
             episodes=episodes, features=features, shard=shard, workers=workers, float16=float16,
             sample_vad=sample_vad, compression=compression, delays=delays, device=device, backend=backend,
-            progress=progress, engine=engine, ray_address=ray_address, **source_options))
+            progress=progress, engine=engine, ray_address=ray_address, say=say, **source_options))
     out = Path(out)
-    from doabench.envs.sources import make_episode_source
+    from doabench.envs.sources import make_episode_source, say_simulation_time
 
     source = make_episode_source(spec, backend=backend, device=device, **source_options)
     total = len(source)
@@ -235,11 +245,17 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
         raise ConfigError(f"task {spec.id!r} has {total} episodes; --episodes {episodes} is out of range 1..{total}")
     config = generation_config(spec, requests, episodes, shard, float16, delays, sample_vad, compression, backend,
                                device, source_options)
-    indices = shard_indices(episodes, shard)
+    folder = parts_dir(out)
+    taken, selection, note = dataset_selection(spec, total, episodes, config, out, folder)
+    if selection["rule"] == "stratified":
+        config["selection"] = "stratified"
+    indices = shard_of(taken, shard)
     if not indices:
         assert shard is not None, "without a shard every episode is kept, and there is at least one"
         raise ConfigError(f"shard {shard[0]}/{shard[1]} of {episodes} episodes is empty")
-    folder = parts_dir(out)
+    if say is not None:
+        say(f"{spec.id}: {describe_selection(spec, total, taken, selection)}"
+            + (f"; shard {shard[0]}/{shard[1]} makes {len(indices)} of them" if shard else "") + note)
 
     if out.exists():
         return _already_made(out, folder, config, indices, start)
@@ -257,6 +273,7 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
         tag = part_tag(config)
         done = scan_parts(folder, tag) & set(indices)
         todo = [i for i in indices if i not in done]
+        say_simulation_time(source, todo, int(workers or 1))  # a slow engine says so before it starts
         computer_kwargs = {"float16": float16, "delays": delays, "sample_vad": sample_vad, "device": device,
                            "backend": backend, **source_options}
         used = _run(spec, requests, computer_kwargs, todo, folder, compression, workers, progress, source,
@@ -272,6 +289,37 @@ def make_dataset(task: str | TaskSpec, out: str | Path, episodes: int | None = N
         shutil.rmtree(folder, ignore_errors=True)
     return GenerationResult(out, len(indices), len(todo), len(done), time.perf_counter() - start,
                             size=out.stat().st_size)
+
+
+def dataset_selection(spec: TaskSpec, total: int, episodes: int, config: dict[str, Any], out: Path,
+                      folder: Path) -> tuple[list[int], dict[str, Any], str]:
+    """The episodes a dataset of ``episodes`` of the task's ``total`` takes, the selection's
+    record and a note (empty, or why the selection is not run's): ``run``'s rule
+    (:func:`~doabench.envs.selection.select_episodes`: a grid's episodes spread over its cells,
+    else the first N). A dataset of a grid begun before that rule (the existing file's or the
+    journal's ``config`` is this one without a ``selection`` key: it took the first N) keeps its
+    first N, so that it resumes and reads as it was made."""
+    taken, selection = select_episodes(spec, total, episodes)
+    if selection["rule"] != "stratified":
+        return taken, selection, ""
+    recorded = _recorded_config(out, folder)
+    if recorded is not None and "selection" not in recorded and not config_difference(recorded, config):
+        return (list(range(episodes)), {"rule": "first", "episodes": episodes, "cells": None},
+                f" ({out} was begun with them, before --episodes spread over a grid's cells: it keeps them; a new "
+                "--out spreads them)")
+    return taken, selection, ""
+
+
+def _recorded_config(out: Path, folder: Path) -> dict[str, Any] | None:
+    """The config an existing ``out`` or its unfinished journal records (None: neither, or a
+    journal config that cannot be read, which the journal check deals with)."""
+    if out.exists():
+        return _existing_config(out)
+    try:
+        recorded = json.loads((folder / "config.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return recorded if isinstance(recorded, dict) else None
 
 
 def _already_made(out: Path, folder: Path, config: dict[str, Any], indices: list[int],

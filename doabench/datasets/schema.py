@@ -207,10 +207,16 @@ def shard_indices(n_episodes: int, shard: tuple[int, int] | None) -> list[int]:
 
     Strided rather than contiguous so that every shard gets its share of each grid cell.
     """
+    return shard_of(range(n_episodes), shard)
+
+
+def shard_of(indices: Sequence[int], shard: tuple[int, int] | None) -> list[int]:
+    """Shard ``(k, n)`` (1-based k) of the episode ``indices`` a dataset takes: those at positions
+    ``p % n == k - 1`` (strided, so that every shard gets its share of each grid cell)."""
     if shard is None:
-        return list(range(n_episodes))
+        return list(indices)
     k, n = shard
-    return list(range(k - 1, n_episodes, n))
+    return list(indices)[k - 1::n]
 
 
 def parse_shard(text: str | None) -> tuple[int, int] | None:

@@ -4,7 +4,7 @@ Registered through the ``doabench.task_kinds`` entry-point group (pyproject.toml
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Sequence
 
 from doabench.arrays import get_array
 from doabench.envs.options import SimulatedOptions
@@ -92,6 +92,22 @@ class SimulatedEpisodes:
                                device=self.device)
         episode.metadata.update({"task": cell_spec.id, "episode_index": index, "seed": seed})
         return episode
+
+    def time_note(self, indices: Sequence[int], workers: int = 1) -> str | None:
+        """One line saying how long simulating the episodes ``indices`` takes when the engine takes
+        more than a minute an episode (:func:`~doabench.acoustics.budget.time_note`, from the same
+        scene sizes as the memory check), else None; None too on a GPU, which the model does not
+        time."""
+        from doabench.acoustics.budget import scene_time, time_note
+
+        if self.device is not None and not str(self.device).startswith("cpu"):
+            return None
+        per_cell = [scene_time(dist, self.array.n_mics, self.simulator.name) for _, dist, _ in self._cells]
+        if any(t is None for t in per_cell):
+            return None
+        seconds = [per_cell[i // self._per_cell].mean for i in indices]  # type: ignore[union-attr]
+        worst = max(per_cell[i // self._per_cell].worst for i in indices) if indices else None  # type: ignore[union-attr]
+        return time_note(self.simulator.name, seconds, worst, workers)
 
     def describe(self) -> dict[str, Any]:
         return {"simulator": self.simulator.name, "simulator_versions": self.simulator.versions(),

@@ -21,7 +21,8 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import inspect
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol
+import sys
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -79,6 +80,16 @@ def make_episode_source(spec: TaskSpec, **options: Any) -> EpisodeSource:
         taken = kind_options(factory)
         given = {k: v for k, v in given.items() if k in taken}
     return factory(spec, **given)
+
+
+def say_simulation_time(source: EpisodeSource, indices: Sequence[int], workers: int = 1) -> None:
+    """Print to standard error, before the work, how long simulating episodes ``indices`` of
+    ``source`` takes when its engine takes more than a minute an episode (a source that can tell:
+    ``source.time_note(indices, workers)``, the simulated kind's); nothing otherwise."""
+    note = getattr(source, "time_note", None)
+    line = note(list(indices), workers) if callable(note) and indices else None
+    if line:
+        print(line, file=sys.stderr, flush=True)
 
 
 def task_identity(spec: TaskSpec, options: Mapping[str, Any]) -> dict[str, Any]:

@@ -70,6 +70,16 @@ class TaskSpec:
         }
 
 
+def is_training_task(task: TaskSpec | Mapping[str, Any]) -> bool:
+    """Whether ``task`` (a spec, or the dict of one a dataset file records) is a training task:
+    its speech is drawn from a LibriSpeech training subset (``train-clean-100``, as ``sim-train``
+    and its variants). Every other task (the simulated test tasks on ``test-other``, ``sim-demo``,
+    LOCATA's recordings) is a benchmark task, one that scores trackers."""
+    params = task.params if isinstance(task, TaskSpec) else task.get("params", {})
+    speech = dict((params or {}).get("speech") or {})
+    return speech.get("corpus") == "librispeech" and str(speech.get("subset", "")).startswith("train")
+
+
 def _plain(obj: Any) -> Any:
     if isinstance(obj, Mapping):
         return {k: _plain(v) for k, v in obj.items()}

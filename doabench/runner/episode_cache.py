@@ -23,7 +23,7 @@ import os
 import warnings
 import zipfile
 from pathlib import Path
-from typing import Any, Protocol, TypeGuard
+from typing import Any, Protocol, Sequence, TypeGuard
 
 import numpy as np
 
@@ -74,6 +74,12 @@ class CachedEpisodes:
 
     def __getattr__(self, name: str) -> Any:  # describe(), stored_features, ... of the wrapped source
         return getattr(self.source, name)
+
+    def time_note(self, indices: Sequence[int], workers: int = 1) -> str | None:
+        """The wrapped source's time note for the episodes of ``indices`` not cached yet."""
+        note = getattr(self.source, "time_note", None)
+        todo = [i for i in indices if not self.path(i).is_file()]
+        return note(todo, workers) if callable(note) and todo else None
 
     def path(self, index: int) -> Path:
         return self.folder / f"{self.prefix}-{int(self.source.episode_seed(index))}.npz"

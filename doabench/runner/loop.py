@@ -20,7 +20,7 @@ import numpy as np
 
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
-from doabench.envs.sources import task_identity
+from doabench.envs.sources import say_simulation_time, task_identity
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, DoabenchError, TrackerError
 from doabench.geometry import NO_SOURCE, is_no_source, normalize
@@ -28,7 +28,7 @@ from doabench.files import to_json
 from doabench.provenance import environment
 from doabench.runner.journal import append_record, config_hash, load_journal
 from doabench.runner.episode_cache import cache_episodes
-from doabench.runner.selection import select_episodes
+from doabench.envs.selection import select_episodes
 from doabench.runner.summary import build_results, episode_row, score
 from doabench.trackers.base import Tracker
 
@@ -198,6 +198,7 @@ def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
     indices, selection = select_episodes(task, env.n_episodes, episodes, cells)
     done = load_journal(partial_path, config_hash(spec.journal_config(indices, env_options)))
     earlier = set(done)  # episodes an earlier invocation journalled
+    say_simulation_time(env.source, [i for i in indices if i not in done])  # a slow engine says so first
     try:
         records = _run_indices(env, tracker, task, indices, done, partial_path, progress, keep_frames, wall_start)
     except BaseException:

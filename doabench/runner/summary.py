@@ -16,7 +16,7 @@ from doabench.geometry import NO_SOURCE_ERROR_DEG, is_no_source, resolution_text
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
 from doabench.envs.spec import TaskSpec
-from doabench.runner.selection import cells_covered
+from doabench.envs.selection import cells_covered
 from doabench.metrics import (ScoredFrames, aggregate, bootstrap_ci, lag_from_curves, pooled_from_rows,
                               pooled_speed_bands, score_episode, score_frames)
 from doabench.trackers.base import Tracker
@@ -89,7 +89,7 @@ def build_results(spec: TaskSpec, tracker: Tracker, tracker_text: str, tracker_o
                   env: DoaEnv, records: list[dict[str, Any]], wall_s: float, provenance: dict[str, Any], delays: str,
                   selection: dict[str, Any] | None = None) -> dict[str, Any]:
     """The results dictionary from the episode records of a run (``env``: its :class:`DoaEnv`;
-    ``selection``: how its episodes were chosen, :func:`doabench.runner.selection.select_episodes`)."""
+    ``selection``: how its episodes were chosen, :func:`doabench.envs.selection.select_episodes`)."""
     rows = [r["row"] for r in records]
     per_frame = [(np.asarray(r["errors"], float), np.asarray(r["az_errors"], float), np.asarray(r["vad"], bool))
                  for r in records]

@@ -43,6 +43,14 @@ def cache_name(task_id: str, version: int, split: str, t60: tuple[float, float],
     return f"{task_id}-v{version}-{split}-t60_{t60[0]:g}-{t60[1]:g}-seed{base_seed}"
 
 
+def item_bytes(n_mics: int, duration_s: float, fs: int, n_points: int) -> int:
+    """Bytes of one cached trajectory on disk: its float16 audio and bool VAD per sample, the
+    trajectory and array positions per point (float64) and about 4 kB of ``.npz`` headers and
+    scalars (a 20 s, 12-microphone item is 8,006,374 bytes)."""
+    samples = int(round(duration_s * fs))
+    return samples * (2 * n_mics + 1) + 2 * 3 * 8 * n_points + 4096
+
+
 def write_item(path: Path, item: dict[str, Any]) -> None:
     """Write one trajectory atomically (a crash never leaves a partial file)."""
     with atomic_path(path, suffix=".npz") as tmp:

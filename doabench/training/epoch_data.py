@@ -20,7 +20,8 @@ from doabench.errors import NotFoundError
 from doabench.framing import FrameSpec
 from doabench.training.cache import TrajectoryCache
 from doabench.training.data import CachedItems, DatasetItems, NetworkInputs, SimulatedItems, ValidationItems, collate
-from doabench.training.pipeline import cache_folder, check_memory, ensure_cache, scene_distribution, speech_for_split
+from doabench.training.pipeline import (cache_folder, check_memory, ensure_cache, scene_distribution, simulation_note,
+                                        speech_for_split)
 from doabench.training.protocol import training_observations
 from doabench.training.recipes import Recipe
 
@@ -109,6 +110,9 @@ class EpochData:
         self._simulation: tuple[Any, Any, Any] | None = None
         if options.dataset is None:  # the scenes are simulated: refused here if they cannot fit
             check_memory(spec, recipe, options.simulator)
+            if recipe.data == "simulate" and (note := simulation_note(
+                    spec, recipe, options.simulator, recipe.trajectories_per_epoch, max(1, workers), "an epoch")):
+                log(note)  # a slow engine says so before the first epoch
 
     def data_device(self) -> torch.device:
         """Where simulation and features run: the training device when the training process does
@@ -119,8 +123,7 @@ class EpochData:
         """The validation cache, its missing items simulated first."""
         if self.val_cache_dir is None:
             folder = cache_folder(self.options.cache_root, self.spec, self.recipe, "val")
-            if len(cached_indices(folder)) < self.recipe.val_trajectories:
-                self.log(f"building the validation cache {folder} ({self.recipe.val_trajectories} trajectories)")
+            if len(cached_indices(folder)) < self.recipe.val_trajectories:  # it says where and how big first
                 ensure_cache(self.options.cache_root, self.spec, self.recipe, "val", self.recipe.val_trajectories,
                              self.options.librispeech, self.options.simulator, self.log)
             self.val_cache_dir = folder

@@ -34,6 +34,30 @@ def check_memory(spec: TaskSpec, recipe: Recipe, backend: str = "builtin") -> No
                scene_fields(f"task {spec.id!r} training scene"), backend)
 
 
+def simulation_note(spec: TaskSpec, recipe: Recipe, backend: str, n_trajectories: int, workers: int = 1,
+                    group: str | None = None) -> str | None:
+    """How long simulating ``n_trajectories`` training scenes takes on the engine ``backend`` when
+    it takes more than a minute a scene (:func:`~doabench.acoustics.budget.time_note`, from the
+    same scene sizes as :func:`check_memory`), else None."""
+    from doabench.acoustics.budget import scene_time, time_note
+    from doabench.arrays import get_array
+
+    timing = scene_time(scene_distribution(spec, recipe), get_array(spec.array).n_mics, backend)
+    if timing is None or n_trajectories < 1:
+        return None
+    return time_note(backend, [timing.mean] * n_trajectories, timing.worst, workers, "trajectory", group)
+
+
+def cache_size_text(spec: TaskSpec, recipe: Recipe, n_items: int) -> str:
+    """About how much disk ``n_items`` cached trajectories of ``spec`` take: ``about 240 MB``."""
+    from doabench.arrays import get_array
+    from doabench.training.cache import item_bytes
+
+    dist = scene_distribution(spec, recipe)
+    total = n_items * item_bytes(get_array(spec.array).n_mics, dist.duration_s, dist.fs, dist.n_points)
+    return f"about {total / 1e9:.3g} GB" if total >= 1e9 else f"about {total / 1e6:.3g} MB"
+
+
 def speech_for_split(spec: TaskSpec, split: str, librispeech: str | None, fraction: float):
     """The task's speech source restricted to the ``train`` or ``val`` speakers."""
     from doabench.envs.sources import make_speech_source
@@ -56,6 +80,15 @@ def ensure_cache(root: str | Path, spec: TaskSpec, recipe: Recipe, split: str, n
 
     check_memory(spec, recipe, simulator)
     dist = scene_distribution(spec, recipe)
+    folder = cache_folder(root, spec, recipe, split)
+    missing = n_items - len(list(folder.glob("[0-9]*.npz")))
+    if missing > 0:  # where, how much disk and (a slow engine) how long, before the first trajectory
+        of = f"{missing} of {n_items}" if missing < n_items else f"{n_items}"
+        name = "validation" if split == "val" else "training"
+        log(f"building the {name} cache in {folder}: {of} trajectories of {dist.duration_s:g} s to simulate, "
+            f"{cache_size_text(spec, recipe, missing)} on disk (kept there for later runs)")
+        if note := simulation_note(spec, recipe, simulator, missing):
+            log(note)
     speech = speech_for_split(spec, split, librispeech, recipe.val_speaker_fraction)
     array = get_array(spec.array)
     manifest = {"task": spec.id, "task_version": spec.version, "array": array.name,
@@ -63,6 +96,6 @@ def ensure_cache(root: str | Path, spec: TaskSpec, recipe: Recipe, split: str, n
                 "speaker_split": {"split": split, "val_fraction": recipe.val_speaker_fraction,
                                   "speakers": sorted(getattr(speech, "speakers", []))},
                 "simulator": simulator}
-    return build_cache(cache_folder(root, spec, recipe, split), n_items,
+    return build_cache(folder, n_items,
                        lambda seed: sample_scene(dist, seed, speech, array), speech, array,
                        get_simulator(simulator), spec.base_seed, split, manifest, log)

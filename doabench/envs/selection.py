@@ -1,5 +1,6 @@
-"""Which episodes of a task a run takes (``--episodes N``, ``--cells``), and the record of it in
-the results (``task.selection``, docs/results-format.md).
+"""Which episodes of a task a run or a dataset takes (``doabench run --episodes N``, ``--cells``;
+``doabench make-dataset --episodes N``), and the record of it in the results (``task.selection``,
+docs/results-format.md) and in a dataset's config (``selection``, docs/hdf5-schema.md).
 
 A grid task's episodes lie cell after cell (:mod:`doabench.envs.simulated`: episode ``i`` is
 episode ``i % per_cell`` of cell ``i // per_cell``). Its first N episodes would all come from the
@@ -76,6 +77,26 @@ def select_episodes(spec: Any, n_total: int, episodes: int | Sequence[int] | Non
     # the last, incomplete round: cells evenly spaced over the grid, not its first ones
     taken += [grid[int((k + 0.5) * len(grid) / rest)][1][rounds] for k in range(rest)]
     return sorted(taken), {"rule": "stratified", "episodes": episodes, "cells": cells}
+
+
+def describe_selection(spec: Any, n_total: int, indices: Sequence[int], selection: dict[str, Any]) -> str:
+    """What a selection takes, in words: ``6 of 360 episodes, spread over the 18 cells (one each
+    from 6 of them)``, ``the first 6 of 100 episodes``, ``all 360 episodes``."""
+    n = len(indices)
+    rule = selection.get("rule")
+    grid = grid_layout(spec, n_total)
+    if rule in ("all", "cells") and n == n_total:
+        return f"all {n_total} episodes"
+    if rule in ("stratified", "cells") and grid is not None:
+        cells = selection.get("cells") or [c for c, _ in grid]
+        chosen = set(indices)
+        used = sum(1 for c, idx in grid if c in cells and chosen.intersection(idx))
+        whose = f"the {len(cells)} cells" if len(cells) == len(grid) else f"{len(cells)} of the {len(grid)} cells"
+        share = "" if used == len(cells) else f" (one each from {used} of them)"
+        return f"{n} of {n_total} episodes, spread over {whose}{share}"
+    if rule == "first":
+        return f"the first {n} of {n_total} episodes"
+    return f"{n} of {n_total} episodes"
 
 
 def cells_covered(spec: Any, rows: Sequence[dict[str, Any]]) -> dict[str, int] | None:
