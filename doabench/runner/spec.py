@@ -123,7 +123,7 @@ def run_task(tracker: Tracker | str, task: str, episodes: int | Sequence[int] | 
     """Run ``tracker`` on ``task`` and return the results dictionary (see docs/results-format).
 
     ``episodes``: a count or explicit indices; default all of the task's episodes. A count on a
-    grid task is spread over its cells (:mod:`doabench.runner.selection`), else the first N.
+    grid task is spread over its cells (:mod:`doabench.envs.selection`), else the first N.
     ``cells``: on a grid task, only these cells (cell task ids). ``delays``: None runs the tracker
     on the SRP delays it was trained on. ``partial_path``: a JSON-lines journal of finished
     episodes for resuming (any path; :meth:`RunSpec.execute` with an ``out`` folder names it),
