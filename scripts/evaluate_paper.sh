@@ -23,7 +23,7 @@ LEARNED="cross3d:4x8,cross3d:8x16,cross3d:16x32,gcc-cnn1d,max-cnn1d:64x128,spec-
 "$DOABENCH" sweep --trackers "$LEARNED" --tracker-opt weights=paper --tasks sim-grid,sim-pauses,sim-fan \
     --librispeech "$LIBRI" --out results --leaderboard leaderboards --no-frames --quiet --overwrite
 # Fig. 6 as the paper's: Cross3D and the SRP-PHAT trackers; Fig. 8 adds the other learned models.
-"$DOABENCH" plot rmsae-vs-t60 results/sim-grid__{cross3d_16x32,cross3d_8x16,cross3d_4x8,srp-kalman_32x64,srp-max_*}.json \
+"$DOABENCH" plot rmsae-vs-t60 results/sim-grid__{cross3d_16x32__paper,cross3d_8x16__paper,cross3d_4x8__paper,srp-kalman_32x64,srp-max_*}.json \
     --metric rmsae_nonsilent --out docs/img/fig6-rmsae-nonsilent-vs-t60
 "$DOABENCH" plot rmsae-vs-t60 results/sim-grid__*.json --metric rmsae_all --out docs/img/fig8-rmsae-all-vs-t60
 # Fig. 7 and the split of the error by silence need per-frame estimates, which the sweep leaves
@@ -33,11 +33,11 @@ LEARNED="cross3d:4x8,cross3d:8x16,cross3d:16x32,gcc-cnn1d,max-cnn1d:64x128,spec-
 "$DOABENCH" run --tracker srp-kalman:32x64 --task sim-grid --librispeech "$LIBRI" --out runs/fig7 --quiet --overwrite
 "$DOABENCH" run --tracker cross3d:16x32 --tracker-opt weights=paper --task sim-grid --librispeech "$LIBRI" \
     --out runs/fig7 --quiet --overwrite
-"$DOABENCH" plot episode runs/fig7/sim-grid__srp-kalman_32x64.json runs/fig7/sim-grid__cross3d_16x32.json \
+"$DOABENCH" plot episode runs/fig7/sim-grid__srp-kalman_32x64.json runs/fig7/sim-grid__cross3d_16x32__paper.json \
     --episode 180 --librispeech "$LIBRI" --out docs/img/fig7-episode-180
 # Where Cross3D's error is (frames since voice, the hold-the-truth oracle), and the paired
 # comparisons behind the paper's claims; docs/results.md shows them (python scripts/docs_gen.py).
-"$DOABENCH" compare runs/fig7/sim-grid__cross3d_16x32.json runs/fig7/sim-grid__srp-kalman_32x64.json --silence
-"$DOABENCH" compare results/sim-grid__cross3d_16x32.json results/sim-grid__{srp-max_16x32,srp-kalman_32x64,cross3d_8x16}.json \
+"$DOABENCH" compare runs/fig7/sim-grid__cross3d_16x32__paper.json runs/fig7/sim-grid__srp-kalman_32x64.json --silence
+"$DOABENCH" compare results/sim-grid__cross3d_16x32__paper.json results/sim-grid__{srp-max_16x32,srp-kalman_32x64,cross3d_8x16__paper}.json \
     --plot runs/fig7/forest-cross3d_16x32
-"$DOABENCH" compare results/sim-grid__cross3d_4x8.json results/sim-grid__max-cnn1d_64x128.json
+"$DOABENCH" compare results/sim-grid__cross3d_4x8__paper.json results/sim-grid__max-cnn1d_64x128__paper.json

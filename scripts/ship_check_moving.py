@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="folder of the classical trackers' and the paper-recipe reference's results (default: results/)")
     ap.add_argument("--stem", default="cross3d_16x32", help="results-file stem of the candidate (its files' names "
                     "start with it)")
-    ap.add_argument("--reference-stem", default="cross3d_16x32",
+    ap.add_argument("--reference-stem", default="cross3d_16x32__paper",
                     help="the exact results-file stem the static checks compare with (default: the paper-recipe "
                          "cross3d:16x32, weights=paper; any candidate's resolution is compared with it)")
     args = ap.parse_args(argv)

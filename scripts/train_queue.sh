@@ -78,8 +78,8 @@ fi
 # sim-train-moving, warm-started from cross3d-16x32-moving-long's weights (its 1D layer widened,
 # docs/training.md "Warm starts"): its first four epochs were ahead of the 32x64 run from random
 # weights at every epoch (training-runs/cross3d-32x64-moving-long/card.md). Stopped after epoch 4
-# of 80: the epochs left span four machine sessions and more run-state commits (31 MB each) than
-# its budget allows; its card says how to resume it by hand. Not in the queue.
+# of 80: the epochs left need about 11 h of both cores, resumed three times, and more run-state
+# commits (31 MB each) than its budget allows; its card says how to resume it by hand. Not in the queue.
 # seldnet-lr1e-3 and spec-cnn2d-he: the spectrogram models again, on the paper's spectrogram recipe
 # (T60 0-0.3 s) with what small fits measured (docs/training.md, "The spectrogram models: what was
 # measured"): SELDnet at its own learning rate, 1e-3 then 1e-4, for 24 epochs (its 18-epoch run at

@@ -166,7 +166,7 @@ def test_silence_breakdown_and_hold_the_truth(tmp_path, capsys):
 
 def test_shipped_results_pool_as_the_leaderboards_do(capsys):
     """On the committed results the pooled values are the files' own summary."""
-    a, b = ROOT / "results" / "sim-fan__gcc-cnn1d.json", ROOT / "results" / "sim-fan__cross3d_16x32.json"
+    a, b = ROOT / "results" / "sim-fan__gcc-cnn1d__paper.json", ROOT / "results" / "sim-fan__cross3d_16x32__paper.json"
     if not (a.is_file() and b.is_file()):
         pytest.skip("shipped results not present")
     c = cmp.compare(cmp.load_run(a), cmp.load_run(b), n_resamples=200)

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def learned() -> dict:
-    path = ROOT / "results" / "sim-grid__cross3d_16x32.json"
+    path = ROOT / "results" / "sim-grid__cross3d_16x32__paper.json"
     if not path.is_file():
         pytest.skip("shipped results not present")
     return json.loads(path.read_text())

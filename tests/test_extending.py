@@ -193,6 +193,7 @@ def test_the_observation_contract_is_one_stored_value(tmp_path):
     and each file alone gives it back."""
     import json
 
+    from doabench_baselines.catalog import find_weights
     from doabench_baselines.weights import WeightsFile, read_metadata
 
     from conftest import ROOT as root
@@ -202,10 +203,10 @@ def test_the_observation_contract_is_one_stored_value(tmp_path):
     assert ObservationSpec.from_dict(spec.to_dict()) == spec
     assert doabench.ObservationSpec is ObservationSpec
     # a results file's features section is the spec (its trained_delays beside it is ignored)
-    results = json.loads((root / "results" / "sim-walk__cross3d_16x32__65934501.json").read_text())
+    results = json.loads((root / "results" / "sim-walk__cross3d_16x32__moving.json").read_text())
     assert ObservationSpec.from_dict(results["features"]) == spec
     # a weights file: the stored spec, or for a file older than it, the same read from its features
-    old = WeightsFile.find("cross3d", (16, 32), "moving")
+    old = find_weights("cross3d", (16, 32), "moving")
     assert "observations" not in old.metadata and old.observations == spec
     path = tracker.save_weights(tmp_path / "w.safetensors", {"observations": spec.with_delays("exact").to_dict()})
     saved = WeightsFile(path, read_metadata(path))

@@ -533,19 +533,19 @@ def test_a_summary_that_disagrees_with_its_episodes_is_refused_and_named(tmp_pat
     the leaderboard names it and leaves it out, ``compare`` refuses it in one line."""
     folder = tmp_path / "results"
     folder.mkdir()
-    for name in ("sim-fan__cross3d_16x32.json", "sim-fan__srp-kalman_32x64.json"):
+    for name in ("sim-fan__cross3d_16x32__paper.json", "sim-fan__srp-kalman_32x64.json"):
         (folder / name).write_bytes((ROOT / "results" / name).read_bytes())
-    edited = json.loads((folder / "sim-fan__cross3d_16x32.json").read_text())
+    edited = json.loads((folder / "sim-fan__cross3d_16x32__paper.json").read_text())
     edited["summary"]["rmsae_all"] = claim
-    (folder / "sim-fan__cross3d_16x32.json").write_text(json.dumps(edited))
+    (folder / "sim-fan__cross3d_16x32__paper.json").write_text(json.dumps(edited))
     capsys.readouterr()
     assert cli(["leaderboard", "--results", str(folder), "--out", str(tmp_path / "boards")]) == 0
     err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if "sim-fan__cross3d_16x32.json" in line]
+    lines = [line for line in err.splitlines() if "sim-fan__cross3d_16x32__paper.json" in line]
     assert len(lines) == 1 and "skipped" in lines[0] and f"summary.rmsae_all is {claim:.4g}" in lines[0], err
     page = (tmp_path / "boards" / "sim-fan.md").read_text()
     assert "cross3d" not in page.split("## ")[0] and f"{claim:.2f} [" not in page and "srp-kalman:32x64" in page
-    assert cli(["compare", str(folder / "sim-fan__cross3d_16x32.json"),
+    assert cli(["compare", str(folder / "sim-fan__cross3d_16x32__paper.json"),
                 str(folder / "sim-fan__srp-kalman_32x64.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "episode rows pool to" in err
@@ -556,14 +556,14 @@ def test_an_interval_that_does_not_hold_its_value_is_refused_and_named(tmp_path:
     is named and left out, like an edited value."""
     folder = tmp_path / "results"
     folder.mkdir()
-    for name in ("sim-fan__cross3d_16x32.json", "sim-fan__srp-kalman_32x64.json"):
+    for name in ("sim-fan__cross3d_16x32__paper.json", "sim-fan__srp-kalman_32x64.json"):
         (folder / name).write_bytes((ROOT / "results" / name).read_bytes())
-    edited = json.loads((folder / "sim-fan__cross3d_16x32.json").read_text())
+    edited = json.loads((folder / "sim-fan__cross3d_16x32__paper.json").read_text())
     edited["summary"]["rmsae_all_ci95"] = [0.1, 0.2]
-    (folder / "sim-fan__cross3d_16x32.json").write_text(json.dumps(edited))
+    (folder / "sim-fan__cross3d_16x32__paper.json").write_text(json.dumps(edited))
     capsys.readouterr()
     assert cli(["leaderboard", "--results", str(folder), "--out", str(tmp_path / "boards")]) == 0
     err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if "sim-fan__cross3d_16x32.json" in line]
+    lines = [line for line in err.splitlines() if "sim-fan__cross3d_16x32__paper.json" in line]
     assert len(lines) == 1 and "rmsae_all_ci95" in lines[0], err
     assert "[0.10, 0.20]" not in (tmp_path / "boards" / "sim-fan.md").read_text()

@@ -218,3 +218,55 @@ def test_a_plug_in_trackers_spec_is_part_of_its_identity(tmp_path: Path, monkeyp
     for label in labels:
         assert f"`{label}`" in page
     assert "ema_plugin" not in sys.modules
+
+
+# -- shipped weights name the file; `doabench migrate` brings older names to it ----------------------
+def test_shipped_weights_name_the_file_and_other_options_hash_after_them() -> None:
+    h = "ab" * 32
+    assert results_stem("sim-walk", "cross3d:16x32", {}, weights_hash=h, weights_name="paper") == \
+        "sim-walk__cross3d_16x32__paper"
+    named = results_stem("sim-walk", "cross3d:16x32", {"weights": "moving-long"}, weights_hash=h,
+                         weights_name="moving-long")
+    assert named == "sim-walk__cross3d_16x32__moving-long"
+    refined = results_stem("sim-walk", "cross3d:16x32", {"weights": "moving-long", "refine": "64x128"},
+                           weights_hash=h, weights_name="moving-long")
+    assert refined.startswith(named + "__") and len(refined) == len(named) + 10
+    # a file that is not shipped weights is named by its content's hash, as before
+    assert results_stem("sim-walk", "cross3d:16x32", {"weights": "w.safetensors"}, weights_hash=h).startswith(
+        "sim-walk__cross3d_16x32__") and "paper" not in results_stem("sim-walk", "cross3d:16x32",
+                                                                      {"weights": "w.safetensors"}, weights_hash=h)
+
+
+def _old_named_copy(folder: Path) -> tuple[Path, str]:
+    """A committed results file of shipped weights under a name of the older naming (its hash)."""
+    source = ROOT / "results" / "sim-pauses__cross3d_16x32__paper-v3.json"
+    folder.mkdir()
+    old = folder / "sim-pauses__cross3d_16x32__650e03d8.json"
+    old.write_bytes(source.read_bytes())
+    old.with_suffix(".csv").write_text("episode\n")
+    return old, source.name
+
+
+def test_migrate_renames_older_names_with_their_csv_and_is_idempotent(tmp_path: Path, capsys) -> None:
+    old, new_name = _old_named_copy(tmp_path / "r")
+    assert main(["migrate", str(old.parent), "--dry-run"]) == 0
+    assert f"{old.name} -> {new_name}" in capsys.readouterr().out and old.exists()
+    assert main(["migrate", str(old.parent)]) == 0
+    assert not old.exists() and (old.parent / new_name).exists()
+    assert (old.parent / new_name).with_suffix(".csv").read_text() == "episode\n"
+    capsys.readouterr()
+    assert main(["migrate", str(old.parent)]) == 0
+    assert "every results file has its current name" in capsys.readouterr().out
+
+
+def test_migrate_refuses_two_files_of_one_configuration_and_foreign_files(tmp_path: Path, capsys) -> None:
+    old, new_name = _old_named_copy(tmp_path / "r")
+    (old.parent / new_name).write_bytes(old.read_bytes())
+    assert main(["migrate", str(old.parent)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "same configuration" in err and old.exists()
+    (old.parent / new_name).unlink()
+    (old.parent / "notes.json").write_text("[1, 2]")
+    assert main(["migrate", str(old.parent)]) == 2
+    assert "notes.json" in capsys.readouterr().err and old.exists()
+    assert main(["migrate", str(tmp_path / "missing")]) == 2

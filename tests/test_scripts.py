@@ -53,21 +53,21 @@ def test_the_moving_talker_ship_check_fails_todays_default(tmp_path, capsys) -> 
 
     results = ROOT / "results"
     tasks = ("sim-walk", "sim-turn", "sim-grid", "sim-pauses", "sim-fan")
-    if not all((results / f"{t}__cross3d_16x32.json").is_file() for t in tasks):
+    if not all((results / f"{t}__cross3d_16x32__paper.json").is_file() for t in tasks):
         import pytest
 
         pytest.skip("the committed results are not present")
     for t in tasks:
-        shutil.copy(results / f"{t}__cross3d_16x32.json", tmp_path)
+        shutil.copy(results / f"{t}__cross3d_16x32__paper.json", tmp_path)
     module = _ship_check()
     assert module.main([str(tmp_path)]) == 1
     out = capsys.readouterr().out
     assert "FAIL  sim-walk: pooled lag 0.8 s" in out and "pass  sim-grid: 10.71 against 10.71 deg" in out
-    (tmp_path / "sim-fan__cross3d_16x32.json").unlink()
+    (tmp_path / "sim-fan__cross3d_16x32__paper.json").unlink()
     assert module.main([str(tmp_path)]) == 2
     # a candidate of another resolution is compared with the paper-recipe reference, never with itself
     capsys.readouterr()
-    if (results / "sim-grid__cross3d_32x64__16c0f61f.json").is_file():
+    if (results / "sim-grid__cross3d_32x64__moving.json").is_file():
         module.main([str(results), "--stem", "cross3d_32x64"])
         assert "sim-grid: 13.79 against 10.71 deg" in capsys.readouterr().out
 

@@ -104,6 +104,50 @@ def test_names_and_paths_name_one_configuration() -> None:
     assert make_tracker("cross3d", weights="default").weights_hash() == by_default.weights_hash()
 
 
+def test_a_tracker_says_whether_it_loaded_its_default_and_canonical_ids_build_no_second_one(
+        tmp_path: Path, monkeypatch) -> None:
+    """Whether the loaded file is the default is the instance's answer (the same SHA-256 as the
+    default the catalog names, wherever the file was read from); canonical_tracker reads it from the
+    instance it is given and builds no other tracker, for the baselines as for a plug-in."""
+    from doabench.trackers import registry
+
+    default = make_tracker("cross3d")
+    copy = tmp_path / "copy.safetensors"
+    shutil.copy(W.SHIPPED_DIR / "cross3d-16x32-moving-long.safetensors", copy)
+    by_copy = make_tracker("cross3d:16x32", weights=str(copy))
+    assert default.loads_default_weights and by_copy.loads_default_weights
+    assert not make_tracker("cross3d", weights="paper").loads_default_weights
+    assert not make_tracker("cross3d:16x32", weights="random").loads_default_weights
+    plugin = tmp_path / "plug"
+    plugin.mkdir()
+    (plugin / "own_default.bin").write_bytes(b"the plug-in's default weights")
+    (plugin / "weighted_mod.py").write_text(
+        "import hashlib\nfrom pathlib import Path\n\nimport doabench\n\n"
+        "DEFAULT = Path(__file__).with_name('own_default.bin')\n\n\n"
+        "def sha(path):\n    return hashlib.sha256(Path(path).read_bytes()).hexdigest()\n\n\n"
+        "class Weighted(doabench.Tracker):\n"
+        "    def __init__(self, spec=None, weights=None):\n"
+        "        super().__init__(spec, weights=weights)\n"
+        "        self.path = Path(weights) if weights else DEFAULT\n\n"
+        "    def weights_hash(self):\n        return sha(self.path)\n\n"
+        "    @property\n    def loads_default_weights(self):\n        return sha(self.path) == sha(DEFAULT)\n")
+    monkeypatch.syspath_prepend(str(plugin))
+    plug_copy, other = tmp_path / "plug-copy.bin", tmp_path / "other.bin"
+    plug_copy.write_bytes((plugin / "own_default.bin").read_bytes())
+    other.write_bytes(b"other weights")
+    instances = {str(path): make_tracker("weighted_mod:Weighted", weights=str(path)) for path in (plug_copy, other)}
+
+    def no_second_tracker(*args, **kwargs):
+        raise AssertionError("canonical_tracker built a second tracker")
+
+    monkeypatch.setattr(registry, "make_tracker", no_second_tracker)
+    assert canonical_tracker("cross3d:16x32", {"weights": str(copy)}, by_copy) == ("cross3d:16x32", {"weights": "moving-long"})
+    assert canonical_tracker("weighted_mod:Weighted", {"weights": str(plug_copy)}, instances[str(plug_copy)]) == (
+        "weighted_mod:Weighted", {})
+    assert canonical_tracker("weighted_mod:Weighted", {"weights": str(other)}, instances[str(other)]) == (
+        "weighted_mod:Weighted", {"weights": str(other)})
+
+
 def test_an_unknown_name_lists_the_names_and_a_name_of_another_tracker_says_whose() -> None:
     with pytest.raises(ConfigError) as exc:
         make_tracker("cross3d:16x32", weights="movng")
@@ -149,11 +193,11 @@ def test_run_uses_the_default_says_which_and_records_the_name(tmp_path: Path, ca
     assert "tracker cross3d:16x32 (weights=moving-long)" in captured.out
     (path,) = out.glob("*.json")
     data = json.loads(path.read_text())
-    assert path.name == "sim-demo__cross3d_16x32__f011182f.json"  # the stem of weights=moving-long, default or not
+    assert path.name == "sim-demo__cross3d_16x32__moving-long.json"  # named by its weights, default or not
     assert data["tracker"]["weights_name"] == "moving-long"
     assert data["tracker"]["options"] == {"weights": "moving-long"}
     assert main([*RUN, "--tracker", "cross3d", "--tracker-opt", "weights=paper", "--out", str(out)]) == 0
-    plain = json.loads((out / "sim-demo__cross3d_16x32.json").read_text())
+    plain = json.loads((out / "sim-demo__cross3d_16x32__paper.json").read_text())
     assert plain["tracker"]["weights_name"] == "paper" and plain["tracker"]["options"] == {}
 
 
@@ -161,8 +205,8 @@ def test_views_print_the_name_of_committed_results_made_before_names_existed() -
     from doabench.results.labels import run_label
     from doabench.reporting.leaderboard import reproduce_command
 
-    paper = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32.json").read_text())
-    moving = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32__65934501.json").read_text())
+    paper = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32__paper.json").read_text())
+    moving = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32__moving.json").read_text())
     assert "weights_name" not in paper["tracker"]
     assert run_label(paper) == "cross3d:16x32 (weights=paper)"
     assert run_label(moving) == "cross3d:16x32 (weights=moving)"

@@ -40,6 +40,7 @@ SUBCOMMAND_MODULES = (
     "locata_eval",
     "sweep",
     "plot",
+    "migrate",
 )
 
 

@@ -43,11 +43,20 @@ def config_suffix(options: Mapping[str, Any] | None = None, delays: str = "neare
 
 
 def results_stem(task_id: str, tracker_id: str, options: Mapping[str, Any] | None = None, delays: str = "nearest",
-                 weights_hash: str | None = None, task_options: Mapping[str, Any] | None = None) -> str:
+                 weights_hash: str | None = None, task_options: Mapping[str, Any] | None = None,
+                 weights_name: str | None = None) -> str:
     """File stem for a run, safe on every filesystem: ``sim-demo__srp-max_32x64`` for the default
     configuration, ``sim-demo__srp-kalman__1a2b3c4d`` with tracker options, exact delays or task
-    options (``--backend``, ``--vad``, ...: :func:`doabench.envs.sources.task_identity`)."""
-    return f"{file_stem(task_id)}__{file_stem(tracker_id)}" + config_suffix(options, delays, weights_hash, task_options)
+    options (``--backend``, ``--vad``, ...: :func:`doabench.envs.sources.task_identity`).
+
+    A run of shipped weights is named by them (``weights_name``): ``sim-walk__cross3d_16x32__moving-long``,
+    then the hash of its other options if any (``...__moving-long__1a2b3c4d``); the file itself keeps
+    the weights' SHA-256. Other weights files enter the hash by their SHA-256."""
+    head = f"{file_stem(task_id)}__{file_stem(tracker_id)}"
+    if weights_name:
+        others = {k: v for k, v in (options or {}).items() if k != "weights"}
+        return f"{head}__{file_stem(weights_name)}" + config_suffix(others, delays, None, task_options)
+    return head + config_suffix(options, delays, weights_hash, task_options)
 
 
 def configuration(task_id: str, task_version: Any, tracker_id: str, options: Mapping[str, Any] | None,
@@ -76,7 +85,7 @@ def results_path(results: Mapping[str, Any], out_dir: str | Path) -> Path:
     """Where :func:`write_results` puts the JSON of ``results``."""
     c = results_configuration(results)
     stem = results_stem(c["task"], c["tracker"], (results["tracker"].get("options") or {}), c["delays"], c["weights"],
-                        c["task_options"])
+                        c["task_options"], results_weights_name(results))
     return Path(out_dir) / f"{stem}.json"
 
 

@@ -42,6 +42,7 @@ class RunSpec:
     trained_delays: str | None = None
     given_id: str | None = None
     task_options: Mapping[str, Any] = field(default_factory=dict)
+    weights_name: str | None = None
 
     @classmethod
     def build(cls, tracker: str | Tracker, task: str, options: Mapping[str, Any] | None = None,
@@ -66,7 +67,8 @@ class RunSpec:
         return cls(task=spec.id, task_version=spec.version, tracker=tracker_id, options=options,
                    weights_hash=instance.weights_hash(), delays=used, requested_delays=delays,
                    trained_delays=trained, given_id=text if text != tracker_id else None,
-                   task_options=task_identity(spec, dict(env_options or {}))), instance
+                   task_options=task_identity(spec, dict(env_options or {})),
+                   weights_name=instance.weights_name), instance
 
     @property
     def task_ref(self) -> str:
@@ -75,8 +77,10 @@ class RunSpec:
 
     @property
     def stem(self) -> str:
-        """The results file stem: ``sim-demo__srp-max_16x32``, ``..__1a2b3c4d`` with options."""
-        return results_stem(self.task, self.tracker, self.options, self.delays, self.weights_hash, self.task_options)
+        """The results file stem: ``sim-demo__srp-max_16x32``, ``..__1a2b3c4d`` with options,
+        ``sim-walk__cross3d_16x32__moving-long`` with shipped weights (:func:`results_stem`)."""
+        return results_stem(self.task, self.tracker, self.options, self.delays, self.weights_hash, self.task_options,
+                            self.weights_name)
 
     def configuration(self) -> dict[str, Any]:
         """What makes two results files the same configuration (results.writer.configuration)."""
