@@ -108,6 +108,7 @@ SLOW_TESTS = (
     "tests/test_train_queue.py",
     "tests/test_docs.py::test_generated_pages_are_current",
     "tests/test_docs.py::test_mkdocs",
+    "tests/test_docs_figures.py::test_a_docs_figure_drawn_from_librispeech_",
     "tests/test_track.py::test_streamed_",
     "tests/test_outputs.py::test_full_disk_",
     "tests/test_outputs.py::test_out_to_standard_output_",

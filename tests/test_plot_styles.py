@@ -1,6 +1,7 @@
-"""Figures a reader can tell apart: every line its own colour, marker and dash however many
-trackers there are, labels that carry the tracker's options, legends clear of the data, the
-RMSAE-by-angular-speed plot, and help texts that say what the plots do."""
+"""Figures a reader can tell apart: 16 distinct colours, then every line its own colour, marker
+and dash however many trackers there are, labels that carry the tracker's options, legends clear
+of the data, panels in two columns that fit a 1280-pixel page, the RMSAE-by-angular-speed plot,
+and help texts that say what the plots do."""
 from __future__ import annotations
 
 from doabench.results.schema import load_results
@@ -47,7 +48,7 @@ def _assert_legends_clear_of_axes(fig) -> None:
     for legend in legends:
         box = legend.get_window_extent(renderer)
         for ax in fig.axes:
-            if ax.get_visible():
+            if ax.get_visible() and ax.axison:  # an axes without axis lines is a legend's own cell
                 assert not box.overlaps(ax.get_window_extent(renderer)), (
                     f"legend over the panel {ax.get_title() or ax.get_ylabel()!r}")
 
@@ -59,6 +60,20 @@ def test_line_styles_are_unique_for_any_number_of_trackers(n: int) -> None:
     assert len(set(triples)) == n
     first = triples[:len(plots.COLOURS) * len(plots.MARKERS)]
     assert len({(c, m) for c, m, _ in first}) == len(first)  # colour and marker alone tell them apart too
+    up_to_16 = triples[:16]
+    assert len({c for c, _, _ in up_to_16}) == len(up_to_16)  # up to 16 lines never share a colour
+
+
+def test_the_palette_has_16_distinct_colours_and_none_is_pale() -> None:
+    import matplotlib.colors as mcolors
+
+    hexes = [mcolors.to_hex(c) for c in plots.COLOURS]
+    assert len(plots.COLOURS) >= 16 and len(set(hexes)) == len(hexes)
+    assert hexes[:10] == [mcolors.to_hex(f"C{i}") for i in range(10)]  # matplotlib's default cycle first
+    for colour in plots.COLOURS:
+        r, g, b = (c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in mcolors.to_rgb(colour))
+        assert 0.2126 * r + 0.7152 * g + 0.0722 * b < 0.5, f"{colour} is too pale to read on white"
+    assert plots.TRUTH_COLOUR in plots.COLOURS  # the episode plot keeps it for the truth alone
 
 
 def test_thirty_trackers_draw_thirty_distinct_lines_in_rmsae_vs_t60() -> None:
@@ -71,9 +86,11 @@ def test_thirty_trackers_draw_thirty_distinct_lines_in_rmsae_vs_t60() -> None:
     lines = [ln for ln in ax.get_lines() if not ln.get_label().startswith("_")]
     assert len(lines) == 30
     # Colour and marker alone already differ for every pair (the 1st and the 11th line used to be
-    # two blue circles), and the dash changes with every round of ten.
+    # two blue circles), the first 16 differ in colour alone, and the dash changes with every
+    # round of sixteen.
     assert len({(mcolors.to_hex(ln.get_color()), ln.get_marker()) for ln in lines}) == 30
-    assert [ln.get_linestyle() for ln in lines] == ["-"] * 10 + ["--"] * 10 + [":"] * 10
+    assert len({mcolors.to_hex(ln.get_color()) for ln in lines[:16]}) == 16
+    assert [ln.get_linestyle() for ln in lines] == ["-"] * 16 + ["--"] * 14
     assert len({ln.get_label() for ln in lines}) == 30
     assert all(ln.get_label() in [t.get_text() for t in ax.get_legend().get_texts()] for ln in lines)
     plt.close(fig)
@@ -230,3 +247,37 @@ def test_a_long_legend_label_widens_the_figure_not_squeezes_the_axes() -> None:
     (axes_short, fig_short), (axes_long, fig_long) = widths
     assert axes_long == pytest.approx(axes_short, rel=0.05)
     assert fig_long > fig_short + 1.0
+
+
+def _grid_results(tracker: str, base: float) -> dict:
+    """A sim-grid-like run with cells at four SNRs."""
+    out = _results(tracker, base)
+    out["cells"] = {f"t{t60}-s{snr}": {"t60": t60, "snr": snr, "rmsae_all": base + t60 + snr / 10,
+                                       "rmsae_nonsilent": base + t60, "n_episodes": 2}
+                    for t60 in (0.3, 0.9) for snr in (5.0, 15.0, 20.0, 30.0)}
+    return out
+
+
+@pytest.mark.parametrize("n_snrs", [1, 2, 3, 4])
+def test_rmsae_vs_t60_fits_a_1280_pixel_page(n_snrs: int, tmp_path: Path) -> None:
+    """Three or more SNR panels make a grid of two columns with the legend in a cell of its own;
+    one or two stand in a row with the legend right of them. The PNG stays about 1280 pixels wide
+    with 13 labelled lines (the docs' Fig. 8)."""
+    from PIL import Image
+
+    runs = [_grid_results(f"srp-max:{4 * (k + 1)}x{8 * (k + 1)}", 10.0 + k) for k in range(13)]
+    for run in runs:
+        run["tracker"]["options"] = {"weights": "a-model-of-typical-name.safetensors"}
+    snrs = [5.0, 15.0, 20.0, 30.0][:n_snrs]
+    fig = plots.rmsae_vs_t60_figure(runs, snrs=snrs)
+    panels = [ax for ax in fig.axes if ax.axison]
+    assert len(panels) == n_snrs
+    if n_snrs >= 3:
+        columns = {round(ax.get_position().x0, 3) for ax in panels}
+        assert len(columns) == 2
+        [slot] = [ax for ax in fig.axes if not ax.axison]
+        assert slot.get_legend() is not None and len(slot.get_legend().get_texts()) == 13
+    _assert_legends_clear_of_axes(fig)
+    paths = plots.save_figure(fig, tmp_path / "fig")
+    width, _ = Image.open(paths[0]).size
+    assert width <= 1300, f"{n_snrs} panels: {width} pixels wide"

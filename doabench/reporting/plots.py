@@ -3,10 +3,14 @@ track (Fig. 7), SRP-PHAT maps at several resolutions (Figs. 1 and 2), training c
 RMSAE by angular speed of the truth.
 
 Every ``plot_*`` function builds a matplotlib figure (``*_figure``, which tests inspect) and
-writes it as PNG and PDF next to each other with atomic writes (:func:`save_figure`). Lines of
-several runs take :func:`line_styles` (colour, marker and dash never all alike) and
-:func:`run_labels` (tracker id with its options); legends sit outside the data. Angles are plotted in degrees with doabench's conventions:
-elevation is the inclination from +z in ``[0, 180]``, azimuth ``atan2(y, x)`` in ``[-180, 180)``.
+writes it as PNG and PDF next to each other with atomic writes (:func:`save_figure`); the PNG
+carries the fingerprint of what the figure shows (:mod:`doabench.reporting.figure_content`), so a
+check can tell whether a committed figure is what its command draws now. Lines of several runs
+take :func:`line_styles` (16 distinct colours, then colour, marker and dash never all alike) and
+:func:`run_labels` (tracker id with its options and weights); legends sit outside the data, in a
+cell of their own where the panels make a grid. Angles are plotted in degrees with doabench's
+conventions: elevation is the inclination from +z in ``[0, 180]``, azimuth ``atan2(y, x)`` in
+``[-180, 180)``.
 """
 from __future__ import annotations
 
@@ -25,6 +29,10 @@ from doabench.results.labels import run_label
 METRICS = ("rmsae_all", "rmsae_nonsilent")
 METRIC_LABELS = {"rmsae_all": "RMSAE, all frames [deg]", "rmsae_nonsilent": "RMSAE, non-silent frames [deg]"}
 FORMATS = ("png", "pdf")
+#: resolution of the PNGs :func:`save_figure` writes
+FIGURE_DPI = 110
+#: the width of a page the figures are read on, in inches at :data:`FIGURE_DPI` (1280 pixels)
+PAGE_WIDTH_IN = 1280 / FIGURE_DPI
 
 
 def _pyplot():
@@ -43,15 +51,19 @@ def output_paths(out: str | Path) -> list[Path]:
     return [stem.with_name(f"{stem.name}.{ext}") for ext in FORMATS]
 
 
-def save_figure(fig, out: str | Path, dpi: int = 110) -> list[Path]:
+def save_figure(fig, out: str | Path, dpi: int = FIGURE_DPI) -> list[Path]:
     """Write ``fig`` as PNG and PDF atomically; returns the paths. Dates are left out of the PDF
-    metadata so re-plotting the same data gives the same file."""
+    metadata so re-plotting the same data gives the same file. The PNG holds the fingerprint of
+    what the figure shows under ``doabench:content`` (a PNG text chunk;
+    :func:`doabench.reporting.figure_content.png_fingerprint` reads it back)."""
     from doabench.files import atomic_path
+    from doabench.reporting.figure_content import CONTENT_KEY, content_fingerprint
 
+    fingerprint = content_fingerprint(fig)  # from the figure object, before any rendering
     paths = output_paths(out)
     for path in paths:
         with atomic_path(path) as tmp:
-            meta = {"CreationDate": None} if path.suffix == ".pdf" else {"Software": None}
+            meta = {"CreationDate": None} if path.suffix == ".pdf" else {"Software": None, CONTENT_KEY: fingerprint}
             fig.savefig(tmp, dpi=dpi, format=path.suffix[1:], metadata=meta, bbox_inches="tight")
     _pyplot().close(fig)
     return paths
@@ -93,7 +105,11 @@ def run_labels(runs: Sequence[dict[str, Any]], with_task: bool = False) -> list[
 
 
 # -- line styles: colour, marker and dash together tell any number of lines apart -------------------
-COLOURS = tuple(f"C{i}" for i in range(10))  # matplotlib's default cycle
+#: Line colours: matplotlib's tab10 (its default cycle), then six darker ones that differ from
+#: those and from each other as much as tab10's own closest pair (red and brown, CIEDE2000 16);
+#: no pale colour, so every line reads on white.
+COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray",
+           "tab:olive", "tab:cyan", "black", "navy", "maroon", "teal", "mediumvioletred", "#808000")
 MARKERS = ("o", "s", "^", "D", "v", "<", ">", "p", "*", "h")
 DASHES: tuple[Any, ...] = ("-", "--", ":", "-.")
 
@@ -122,10 +138,11 @@ def line_styles(n: int, colours: Sequence[str] = COLOURS, markers: Sequence[str]
     """``n`` styles, no two alike in (colour, marker, dash), and within the first
     ``len(colours) * len(markers)`` no two alike in (colour, marker) either.
 
-    Line ``i`` takes colour ``i mod C``; each further round of C lines shifts the marker by one
-    against the colour and takes the next dash pattern, so the 11th line of the default palette is
-    a dashed blue square where the 1st is a solid blue circle. Past ``C * M`` lines the dash
-    patterns continue (generated ones after the named ``dashes``)."""
+    Line ``i`` takes colour ``i mod C``, so up to C lines (16 with :data:`COLOURS`) never share a
+    colour; each further round of C lines shifts the marker by one against the colour and takes
+    the next dash pattern, so the 17th line of the default palette is a dashed blue square where
+    the 1st is a solid blue circle. Past ``C * M`` lines the dash patterns continue (generated
+    ones after the named ``dashes``)."""
     n_c, n_m = len(colours), len(markers)
     block = n_c * n_m
     out = []
@@ -139,13 +156,18 @@ def line_styles(n: int, colours: Sequence[str] = COLOURS, markers: Sequence[str]
     return out
 
 
-def legend_outside(ax, **kwargs: Any):
+def legend_outside(ax, max_width: float | None = None, min_panels_width: float = 0.0, **kwargs: Any):
     """A legend to the right of ``ax``, clear of its data. The figure widens by the legend's width,
-    so that ``tight_layout`` does not squeeze the axes to make room for long labels."""
+    so that ``tight_layout`` does not squeeze the axes to make room for long labels; with
+    ``max_width`` (inches) it widens no further than that, unless the panels would be left
+    narrower than ``min_panels_width`` (then the panels keep that width and the figure is wider)."""
     legend = ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
     fig = ax.figure
-    width_in = legend.get_window_extent(fig.canvas.get_renderer()).width / fig.dpi
-    fig.set_figwidth(fig.get_figwidth() + width_in + 0.1)
+    width_in = legend.get_window_extent(fig.canvas.get_renderer()).width / fig.dpi + 0.1
+    width = fig.get_figwidth() + width_in
+    if max_width is not None:
+        width = max(min(width, max_width), min_panels_width + width_in)
+    fig.set_figwidth(width)
     return legend
 
 
@@ -214,11 +236,15 @@ def rmsae_vs_t60_figure(runs: Sequence[dict[str, Any]], snrs: Sequence[float] | 
         raise InputError(f"no cells with SNR {', '.join(f'{s:g}' for s in missing)} dB; "
                          f"the results have {', '.join(f'{s:g}' for s in known)}")
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(snrs), figsize=(4.6 * len(snrs), 3.8), sharey=True, squeeze=False)
+    if len(snrs) <= 2:  # a row of panels, the legend right of them
+        fig, row = plt.subplots(1, len(snrs), figsize=(4.6 * len(snrs), 3.8), sharey=True, squeeze=False)
+        panels, legend_slot = list(row[0]), None
+    else:
+        fig, panels, legend_slot = panels_with_legend_slot(len(snrs))
     ordered = sorted(grid_runs, key=tracker_label)
     labels = run_labels(ordered)
     styles = line_styles(len(ordered))
-    for ax, snr in zip(axes[0], snrs):
+    for ax, snr in zip(panels, snrs):
         for run, label, style in zip(ordered, labels, styles):
             t60, values, ci = grid_curves(run, snr, metric)
             ax.plot(t60, values, label=label, **style.kwargs())
@@ -227,19 +253,51 @@ def rmsae_vs_t60_figure(runs: Sequence[dict[str, Any]], snrs: Sequence[float] | 
         ax.set_title(f"SNR = {snr:g} dB")
         ax.set_xlabel("T60 [s]")
         ax.grid(True, alpha=0.3)
-    axes[0][0].set_ylabel(METRIC_LABELS[metric])
-    axes[0][0].set_ylim(bottom=0)
-    legend_outside(axes[0][-1], ncol=1 if len(ordered) <= 16 else 2)
+    for ax in panels:
+        if ax.get_subplotspec().is_first_col():
+            ax.set_ylabel(METRIC_LABELS[metric])
+    panels[0].set_ylim(bottom=0)
+    ncol = 1 if len(ordered) <= 16 else 2
+    if legend_slot is None:
+        legend_outside(panels[-1], max_width=PAGE_WIDTH_IN, min_panels_width=3.4 * len(panels), ncol=ncol)
+    else:
+        handles, texts = panels[0].get_legend_handles_labels()
+        # a slot that spans a row (an even number of panels) is twice as wide: twice the columns
+        legend_slot.legend(handles, texts, loc="center", fontsize="small", ncol=ncol if len(panels) % 2 else 2 * ncol)
     task = grid_runs[0]["task"]["id"]
     fig.suptitle(title or f"{task}: {METRIC_LABELS[metric].split(' [')[0]} versus T60 (bands: 95% bootstrap CI)")
     fig.tight_layout()
     return fig
 
 
+def panels_with_legend_slot(n_panels: int, panel_size: tuple[float, float] = (5.0, 3.6)) -> tuple[Any, list[Any], Any]:
+    """A figure of ``n_panels`` panels in two columns sharing their y axis, and an axes without
+    axis lines for the legend in the next cell (with an even number of panels, a row of its own).
+    Two columns keep the figure about 1100 pixels wide at :data:`FIGURE_DPI` however many panels
+    there are. Returns ``(figure, panels, legend_slot)``."""
+    plt = _pyplot()
+    cols = 2
+    rows = math.ceil((n_panels + 1) / cols)
+    fig = plt.figure(figsize=(cols * panel_size[0], rows * panel_size[1]))
+    grid = fig.add_gridspec(rows, cols)
+    panels: list[Any] = []
+    for i in range(n_panels):
+        ax = fig.add_subplot(grid[i // cols, i % cols], sharey=panels[0] if panels else None)
+        if i % cols:
+            ax.tick_params(labelleft=False)  # the left panel of the row carries the values
+        panels.append(ax)
+    legend_slot = fig.add_subplot(grid[n_panels // cols, n_panels % cols] if n_panels % cols
+                                  else grid[n_panels // cols, :])
+    legend_slot.axis("off")
+    return fig, panels, legend_slot
+
+
 def plot_rmsae_vs_t60(runs: Sequence[dict[str, Any]], out: str | Path, snrs: Sequence[float] | None = None,
                       metric: str = "rmsae_nonsilent", title: str | None = None) -> list[Path]:
     """One panel per SNR, one line per tracker configuration with its 95% bootstrap band, each
-    line its own colour, marker and dash (:func:`line_styles`); the legend is right of the panels."""
+    line its own colour, marker and dash (:func:`line_styles`). One or two panels stand in a row
+    with the legend right of them; three or more make a grid of two columns with the legend in
+    a cell of its own (:func:`panels_with_legend_slot`)."""
     return save_figure(rmsae_vs_t60_figure(runs, snrs, metric, title), out)
 
 
@@ -376,7 +434,7 @@ def _shade_silence(ax, times: np.ndarray, vad: np.ndarray) -> None:
 
 
 #: the truth's colour in the episode plot; estimates take the other colours
-TRUTH_COLOUR = "C3"
+TRUTH_COLOUR = "tab:red"
 
 
 def episode_figure(results: dict[str, Any], episode: int, maxima: np.ndarray | None = None,
@@ -418,7 +476,8 @@ def episode_figure(results: dict[str, Any], episode: int, maxima: np.ndarray | N
     handles, _ = axes[0].get_legend_handles_labels()
     if vad is not None and not np.all(vad):
         handles.append(Patch(color="0.85", label="silent frames"))
-    legend_outside(axes[0], handles=handles)  # right of the elevation panel, never over either panel's lines
+    # right of the elevation panel, never over either panel's lines
+    legend_outside(axes[0], max_width=PAGE_WIDTH_IN, min_panels_width=5.5, handles=handles)
     row = f["row"]
     scene = ", ".join(x for x in (
         f"T60 {row['t60']:.2g} s" if row.get("t60") is not None else "",
@@ -586,7 +645,8 @@ def conventions_figure(array, resolution: tuple[int, int]):
     from doabench.geometry import grid_angles
 
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.9), gridspec_kw={"width_ratios": [1, 1, 1.7]})
+    # 11.4 inches: 1254 pixels at FIGURE_DPI, readable on a 1280-pixel page
+    fig, axes = plt.subplots(1, 3, figsize=(11.4, 3.7), gridspec_kw={"width_ratios": [1, 1, 2.1]})
     pos = np.asarray(array.positions) * 100.0
     for ax, (i, j, a, b) in zip(axes[:2], ((0, 1, "x", "y"), (0, 2, "x", "z"))):
         ax.scatter(pos[:, i], pos[:, j], s=28, color="C0", zorder=3)
