@@ -8,8 +8,10 @@ Modules (docs/models.md describes the architectures and how they match Table I):
 * ``cnn2d``     – ``spec-cnn2d`` (paper V-A)
 * ``seldnet``   – SELDnet DOA-branch replica (paper V-A)
 * ``streaming`` – :class:`StreamingRunner`, one frame in, one direction out; a whole episode in chunks
-* ``weights``   – safetensors weight files with checked metadata (:class:`WeightsFile`)
-* ``catalog``   – the shipped weights by name (``paper``, ``moving``) and the default
+* ``weights``   – safetensors weight files with checked metadata and SHA256SUMS (:class:`WeightsFile`)
+* ``catalog``   – which weights: the shipped ones by name (``paper``, ``moving``), their files and
+  SHA-256, the default, and a tracker's weights file found by name, default or path (it builds on
+  ``weights``, which never imports it; the trackers ask it)
 * ``hold``      – the hold rule of the causal trackers in long silences
 * ``device``    – the torch device a tracker runs on
 * ``trackers``  – the registered trackers, one module each (importing one registers it; doabench

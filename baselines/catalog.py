@@ -1,5 +1,9 @@
-"""Weights by name: every shipped weights file of a tracker has a short name, as torchvision's
-weight enums do, and each tracker has a default chosen by a stated rule (docs/models.md).
+"""Which weights is this: the one module that answers it. Every shipped weights file of a tracker
+has a short name, as torchvision's weight enums do, and each tracker has a default chosen by a
+stated rule (docs/models.md). Here are the names, the files, their SHA-256, the catalog and the
+default; the learned trackers ask these functions and derive none of it themselves.
+:mod:`.weights` reads and writes the files and checks them against ``SHA256SUMS``; it never
+imports this module.
 
 The catalog is ``baselines/weights/catalog.json``::
 
@@ -14,13 +18,16 @@ weights=NAME`` types. ``defaults`` holds, per canonical id, the name used withou
 and per tracker whose id names a map resolution (``cross3d``) the canonical id that the bare name
 runs as. ``headline`` (where a task's ``lag_s`` is null, its ``lag_note`` says why: the run's own
 note, or that the run predates the lag measurement) and ``defaults`` are written by
-``scripts/weights_catalog.py`` from the committed results; names, files and runs are written by
-hand when a file ships. A file's SHA-256 is the one the manifest (``SHA256SUMS``) records, which
+``scripts/weights_catalog.py`` from the committed results (:func:`write_catalog`), by the rule of
+``doabench.results.default_weights``; names, files and runs are written by hand when a file ships.
+A file's SHA-256 is the one the manifest (``SHA256SUMS``) records (:func:`shipped_sha256`), which
 loading checks.
 
 The *plain* weights of a tracker are the file named ``<model>[-<res>].safetensors`` (the paper
-recipe's): a run with them carries no weights option, as results always had, so their results keep
-their names; every other named file is a ``weights=NAME`` option of the run.
+recipe's, :func:`plain_file`): a run with them carries no weights option, as results always had, so
+their results keep their names; every other named file is a ``weights=NAME`` option of the run.
+Where the catalog names no default, a tracker runs its plain weights, and the bare id of a model
+with map resolutions the finest resolution that has plain weights (:func:`plain_resolution`).
 """
 from __future__ import annotations
 
@@ -29,7 +36,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+import doabench
 from doabench.errors import ConfigError, InputError
+from doabench.trackers import parse_resolution, resolution_text
 
 from . import weights as W
 
@@ -58,7 +67,13 @@ class NamedWeights:
     @property
     def sha256(self) -> str | None:
         """The SHA-256 the manifest records for the file (loading checks the file against it)."""
-        return W.read_manifest(W.SHIPPED_DIR).get(self.file)
+        return shipped_sha256(self.file)
+
+
+def shipped_sha256(file: str) -> str | None:
+    """The SHA-256 that the manifest (``SHA256SUMS``) records for a shipped file name, None where it
+    lists none: the hash by which a loaded file is known as a shipped one."""
+    return W.read_manifest(W.SHIPPED_DIR).get(file)
 
 
 #: what an entry of ``weights`` holds: required keys, then optional ones, with their types
@@ -81,6 +96,21 @@ def read_catalog(folder: str | Path | None = None) -> dict[str, Any]:
         raise InputError(f"{path} is not a {FORMAT} catalog; reinstall doabench")
     check_catalog(data, path, folder)
     return data
+
+
+def catalog_path() -> Path:
+    """Where the catalog of the shipped weights is (``baselines/weights/catalog.json``)."""
+    return Path(W.SHIPPED_DIR) / CATALOG_NAME
+
+
+def write_catalog(data: Mapping[str, Any]) -> Path:
+    """Write the catalog (:func:`check_catalog`'s form first), two-space indented JSON with the keys
+    in their given order, atomically."""
+    path = catalog_path()
+    check_catalog(data, path, path.parent)
+    with doabench.atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(dict(data), indent=2, sort_keys=False) + "\n")
+    return path
 
 
 def check_catalog(data: Mapping[str, Any], path: Path, folder: Path) -> None:
@@ -139,7 +169,38 @@ def confined_file(folder: Path, file: str, where: str) -> Path:
 
 def tracker_id(model_name: str, resolution: tuple[int, int] | None) -> str:
     """``cross3d:16x32``, or ``gcc-cnn1d`` for a model without a map resolution."""
-    return model_name if resolution is None else f"{model_name}:{W.resolution_text(resolution)}"
+    return model_name if resolution is None else f"{model_name}:{resolution_text(resolution)}"
+
+
+def split_tracker_id(tracker: str) -> tuple[str, tuple[int, int] | None]:
+    """A catalog's tracker id as its model name and map resolution: ``cross3d:16x32`` ->
+    ``("cross3d", (16, 32))``, ``gcc-cnn1d`` -> ``("gcc-cnn1d", None)``."""
+    model, _, resolution = tracker.partition(":")
+    return model, parse_resolution(resolution) if resolution else None
+
+
+def plain_file(model_name: str, resolution: tuple[int, int] | None) -> str:
+    """The file name of a tracker's plain weights: ``cross3d-16x32.safetensors``, ``gcc-cnn1d.safetensors``."""
+    suffix = f"-{resolution_text(resolution)}" if resolution is not None else ""
+    return f"{model_name}{suffix}.safetensors"
+
+
+def shipped_resolutions(model_name: str) -> list[tuple[int, int]]:
+    """The map resolutions at which ``model_name`` has plain shipped weights, smallest first."""
+    found = []
+    for path in Path(W.SHIPPED_DIR).glob(f"{model_name}-*.safetensors"):
+        try:  # cross3d-16x32 is plain; cross3d-16x32-moving is not
+            found.append(parse_resolution(path.stem[len(model_name) + 1:]))
+        except ConfigError:
+            continue
+    return sorted(found, key=lambda r: (r[0] * r[1], r))
+
+
+def plain_resolution(model_name: str) -> tuple[int, int] | None:
+    """The resolution the bare id of ``model_name`` runs at where the catalog names none: the finest
+    with plain shipped weights (None where it has none)."""
+    shipped = shipped_resolutions(model_name)
+    return shipped[-1] if shipped else None
 
 
 def all_named() -> list[NamedWeights]:
@@ -155,7 +216,7 @@ def all_named() -> list[NamedWeights]:
             continue
         head, _, tail = path.stem.rpartition("-")
         try:  # cross3d-16x32, max-cnn1d-64x128: the last part is a resolution
-            resolution = W.parse_resolution(tail) if head else None
+            resolution = parse_resolution(tail) if head else None
         except ConfigError:
             resolution = None
         model = head if resolution is not None else path.stem
@@ -171,7 +232,7 @@ def named_weights(model_name: str, resolution: tuple[int, int] | None) -> dict[s
 
 def plain_name(model_name: str, resolution: tuple[int, int] | None) -> str | None:
     """The name of the plain weights (``<model>[-<res>].safetensors``), None where none ships."""
-    plain = W.shipped_path(model_name, resolution).name
+    plain = plain_file(model_name, resolution)
     return next((n for n, e in named_weights(model_name, resolution).items() if e.file == plain), None)
 
 
@@ -187,12 +248,24 @@ def default_name(model_name: str, resolution: tuple[int, int] | None) -> str | N
 
 def default_resolution(model_name: str) -> tuple[int, int] | None:
     """The map resolution the bare tracker name runs at (``cross3d`` -> 16x32): the catalog's
-    default for the model, else the finest resolution with plain shipped weights."""
+    default for the model, else :func:`plain_resolution`."""
     chosen = read_catalog()["defaults"].get(model_name)
     if isinstance(chosen, str) and ":" in chosen:
-        return W.parse_resolution(chosen.split(":", 1)[1])
-    shipped = W.shipped_resolutions(model_name)
-    return shipped[-1] if shipped else None
+        return split_tracker_id(chosen)[1]
+    return plain_resolution(model_name)
+
+
+def default_entry(model_name: str, resolution: tuple[int, int] | None) -> NamedWeights | None:
+    """The catalog entry of the weights a tracker runs without a weights option (None: it ships none)."""
+    name = default_name(model_name, resolution)
+    return None if name is None else named_weights(model_name, resolution)[name]
+
+
+def is_default(model_name: str, resolution: tuple[int, int] | None, sha256: str | None) -> bool:
+    """Whether a file of this SHA-256 is the one the tracker runs without a weights option, wherever
+    it was read from (the shipped file, a copy of it)."""
+    entry = default_entry(model_name, resolution)
+    return bool(sha256) and entry is not None and entry.sha256 == sha256
 
 
 def name_of(model_name: str, resolution: tuple[int, int] | None, sha256: str | None) -> str | None:
@@ -223,3 +296,29 @@ def resolve(model_name: str, resolution: tuple[int, int] | None, weights: str | 
     hint = f"; {text!r} names weights of {', '.join(elsewhere)}" if elsewhere else ""
     raise ConfigError(f"unknown weights {text!r} for {here}: its weights names are {known}{hint} "
                       "(or give a weights file path)")
+
+
+def find_weights(model_name: str, resolution: tuple[int, int] | None, weights: str | None) -> W.WeightsFile | None:
+    """The weights file that ``weights`` names for ``model_name`` at ``resolution``, its metadata
+    read: None (or ``default``) is the default (None when it has none), a name is that shipped file,
+    anything else a file path (:func:`resolve` refuses an unknown name in one line). The file must
+    hold a ``model_name`` model."""
+    path = resolve(model_name, resolution, weights)
+    if path is None and weights is not None:
+        path = Path(str(weights)).expanduser()
+    return None if path is None else W.WeightsFile.read(path, model_name)
+
+
+def listing(model_name: str) -> list[dict[str, Any]]:
+    """Every catalog entry of ``model_name`` (all its resolutions) as ``doabench list weights`` and
+    ``describe`` show it (``doabench.Tracker.shipped_weights``): ``tracker``, ``name``, ``default``,
+    ``file``, ``sha256``, ``task``, ``run``, ``headline``; sorted by tracker id, its default first."""
+    out = []
+    for entry in all_named():
+        model, resolution = split_tracker_id(entry.tracker)
+        if model != model_name:
+            continue
+        out.append({"tracker": entry.tracker, "name": entry.name, "default": default_name(model, resolution) == entry.name,
+                    "file": entry.file, "sha256": entry.sha256, "task": entry.task, "run": entry.run,
+                    "headline": dict(entry.headline)})
+    return sorted(out, key=lambda d: (d["tracker"], not d["default"], d["name"]))

@@ -11,9 +11,10 @@ the weights were trained for, and loading checks it against what the caller is a
      "training": {...free-form recipe summary...}, "parameters": 1693988,
      "doabench_version": "0.1.0", "date": "2026-01-01T00:00:00+00:00"}
 
-Shipped weights live in ``baselines/weights/<model>-<resolution>.safetensors`` (models without a
-map resolution: ``<model>.safetensors``). ``baselines/weights/SHA256SUMS`` (``sha256sum`` format)
-lists the SHA-256 of every shipped file; a shipped file is loaded only when it matches, and
+Shipped weights are the files of ``baselines/weights/`` (:data:`SHIPPED_DIR`); which of them a
+tracker runs, by name or by default, is :mod:`.catalog`'s answer, which builds on this module and
+which this module never imports. ``baselines/weights/SHA256SUMS`` (``sha256sum`` format) lists the
+SHA-256 of every shipped file; a shipped file is loaded only when it matches, and
 :func:`save_weights` into that folder updates the list. Every loaded tensor must be finite and of
 a plausible magnitude (at most ``MAX_ABS_WEIGHT``).
 """
@@ -322,33 +323,11 @@ def load_into(model: nn.Module, state: Mapping[str, torch.Tensor], path: str | P
     model.load_state_dict(dict(state))
 
 
-def shipped_path(model_name: str, resolution: tuple[int, int] | None = None) -> Path:
-    suffix = f"-{resolution_text(resolution)}" if resolution is not None else ""
-    return SHIPPED_DIR / f"{model_name}{suffix}.safetensors"
-
-
-def shipped_weights(model_name: str, resolution: tuple[int, int] | None = None) -> Path | None:
-    """The shipped weight file for a model (and resolution), or None."""
-    path = shipped_path(model_name, resolution)
-    return path if path.is_file() else None
-
-
-def shipped_resolutions(model_name: str) -> list[tuple[int, int]]:
-    """Resolutions with shipped weights for ``model_name``, smallest first."""
-    found = []
-    for p in SHIPPED_DIR.glob(f"{model_name}-*.safetensors"):
-        try:
-            found.append(parse_resolution(p.stem[len(model_name) + 1:]))
-        except ConfigError:
-            continue
-    return sorted(found, key=lambda r: (r[0] * r[1], r))
-
-
 class WeightsFile:
-    """One weights file of one model: found (a catalog name, ``default`` or a path), verified
-    (SHA-256 of shipped files, metadata, finite tensors) and described, as one value.
+    """One weights file of one model: read, verified (SHA-256 of shipped files, metadata, finite
+    tensors) and described, as one value.
 
-    :meth:`find` reads the metadata only; :meth:`load_into` reads and checks the tensors. The
+    :meth:`read` reads the metadata only; :meth:`load_into` reads and checks the tensors. The
     metadata says what the weights were trained for: the frames (:attr:`frame_spec`), the SRP
     grid (:attr:`resolution`), the array (:attr:`array`), the SRP delays (:attr:`delay_mode`).
     """
@@ -359,20 +338,13 @@ class WeightsFile:
         self._sha256: str | None = None
 
     @classmethod
-    def find(cls, model_name: str, resolution: tuple[int, int] | None, weights: str | None) -> WeightsFile | None:
-        """The weights ``weights`` names for ``model_name`` at ``resolution``: None (or ``default``)
-        is the catalog's default (None when it has none), a catalog name is that shipped file,
-        anything else a file path (:func:`catalog.resolve` refuses an unknown name in one line). The
-        file must hold a ``model_name`` model."""
-        from . import catalog
-
-        path = catalog.resolve(model_name, resolution, weights)
-        if path is None and weights is not None:
-            path = Path(str(weights)).expanduser()
-        if path is None:
-            return None
+    def read(cls, path: str | Path, model_name: str | None = None) -> WeightsFile:
+        """The weights file at ``path`` with its metadata (the tensors are read by :meth:`load_into`);
+        with ``model_name``, the file must hold a model of that name (a ConfigError otherwise).
+        Finding a file by its catalog name or by default is :func:`.catalog.find_weights`."""
         found = cls(path, read_metadata(path))
-        found.check(model_name=model_name)
+        if model_name is not None:
+            found.check(model_name=model_name)
         return found
 
     def check(self, **expect: Any) -> None:

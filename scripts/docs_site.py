@@ -430,10 +430,8 @@ def _default_weights(tracker: str) -> str | None:
     (``cross3d:16x32`` -> ``cross3d-16x32-moving.safetensors``)."""
     from doabench_baselines import catalog
 
-    model, _, res = tracker.partition(":")
-    resolution = tuple(int(v) for v in res.split("x")) if res else None
-    name = catalog.default_name(model, resolution)  # type: ignore[arg-type]
-    return None if name is None else catalog.named_weights(model, resolution)[name].file  # type: ignore[arg-type]
+    entry = catalog.default_entry(*catalog.split_tracker_id(tracker))
+    return None if entry is None else entry.file
 
 
 def _weights_name(file_name: str) -> str | None:

@@ -1,7 +1,8 @@
 """Maintainers: the figures and defaults of the shipped weights' catalog (baselines/weights/catalog.json).
 
 Names, files and training runs in the catalog are written by hand when a weights file ships. This
-script fills in, from the committed results (``results/``):
+script fills in, from the committed results (``results/``), reading and writing the catalog and
+taking each file's SHA-256 and each tracker's plain weights from :mod:`baselines.catalog`:
 
 * each named file's ``headline``: pooled RMSAE (all frames and voice-active) and lag on every task
   with a complete run of it on the task's defaults, and where a task has no lag, why (``lag_note``);
@@ -18,7 +19,6 @@ tests/test_weights_names.py runs the check.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -27,8 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from baselines import catalog as C  # noqa: E402
-from baselines import weights as W  # noqa: E402
-from doabench.results.default_weights import Verdict, choose, headline  # noqa: E402
+from doabench.geometry import resolution_text  # noqa: E402
+from doabench.results.default_weights import Verdict, choose, counted_runs, headline  # noqa: E402
 from doabench.results.ranking import load_runs  # noqa: E402
 
 
@@ -42,12 +42,11 @@ def with_lag_notes(runs: list[dict[str, Any]], tracker: str, weights_hash: str) 
     and ``describe`` can say why: the run's own ``lag_note`` (a still talker, estimates that do not
     follow it), or :data:`LAG_NOT_MEASURED` for a run older than the lag."""
     figures = headline(runs, tracker, weights_hash)
+    counted = counted_runs(runs, tracker, weights_hash)
     for task, row in figures.items():
         if row.get("lag_s") is not None:
             continue
-        # the run headline() took: the last one of the task it accepts, as its own loop keeps the last
-        chosen = [r for r in runs if (r.get("task") or {}).get("id") == task and headline([r], tracker, weights_hash)][-1]
-        summary = chosen.get("summary") or {}
+        summary = counted[task].get("summary") or {}
         row["lag_note"] = str(summary.get("lag_note") or "") if "lag_s" in summary else LAG_NOT_MEASURED
     return figures
 
@@ -56,28 +55,26 @@ def computed(results_dir: Path, data: dict[str, Any]) -> tuple[dict[str, Any], d
     """The catalog with ``headline`` and ``defaults`` computed from the results in ``results_dir``,
     and the verdicts behind each default."""
     runs = [r.results for r in load_runs(results_dir)]
-    manifest = W.read_manifest(W.SHIPPED_DIR)
     entries = []
     for e in data["weights"]:
-        sha = manifest.get(e["file"])
+        sha = C.shipped_sha256(e["file"])
         entries.append({**e, "headline": with_lag_notes(runs, e["tracker"], sha) if sha else {}})
     defaults: dict[str, str] = {}
     verdicts: dict[str, list[Verdict]] = {}
     trackers = sorted({e["tracker"] for e in entries})
     for tracker in trackers:
         mine = {e["name"]: e["headline"] for e in entries if e["tracker"] == tracker}
-        model, _, res = tracker.partition(":")
-        plain = C.plain_name(model, W.parse_resolution(res) if res else None)
-        chosen, verdicts[tracker] = choose(mine, plain)
+        chosen, verdicts[tracker] = choose(mine, C.plain_name(*C.split_tracker_id(tracker)))
         if chosen is not None:
             defaults[tracker] = chosen
     for model in sorted({t.partition(":")[0] for t in trackers if ":" in t}):
-        # the bare id: the rule over every resolution's weights, named "<res>/<name>"
+        # the bare id: the rule over every resolution's weights, named "<res>/<name>"; where none is
+        # eligible, the plain weights at the resolution the catalog falls back on
         mine = {f"{e['tracker'].partition(':')[2]}/{e['name']}": e["headline"] for e in entries
                 if e["tracker"].partition(":")[0] == model}
-        finest = W.shipped_resolutions(model)
-        plain = f"{W.resolution_text(finest[-1])}/paper" if finest else None
-        chosen, verdicts[model] = choose(mine, plain)
+        fallback = C.plain_resolution(model)
+        plain = C.plain_name(model, fallback) if fallback is not None else None
+        chosen, verdicts[model] = choose(mine, f"{resolution_text(fallback)}/{plain}" if plain else None)
         if chosen is not None:
             defaults[model] = f"{model}:{chosen.partition('/')[0]}"
     return {**data, "weights": entries, "defaults": defaults}, verdicts
@@ -89,7 +86,7 @@ def main() -> int:
     ap.add_argument("--check", action="store_true", help="only check; exit 1 when the catalog is out of date")
     ap.add_argument("--explain", action="store_true", help="print every candidate's verdict")
     args = ap.parse_args()
-    path = Path(W.SHIPPED_DIR) / C.CATALOG_NAME
+    path = C.catalog_path()
     stored = C.read_catalog()
     new, verdicts = computed(Path(args.results), stored)
     if args.explain:
@@ -104,8 +101,7 @@ def main() -> int:
         print(f"{path} matches the results in {args.results}")
         return 0
     if new != stored:
-        path.write_text(json.dumps(new, indent=2, sort_keys=False) + "\n")
-        print(f"wrote {path}")
+        print(f"wrote {C.write_catalog(new)}")
     else:
         print(f"{path} is up to date")
     return 0

@@ -37,17 +37,27 @@ def test_the_shared_tracker_leaves_weights_and_holding_to_their_own_values():
 
 def test_a_weights_file_is_found_by_name_verified_and_described():
     from doabench_baselines import catalog
-    from doabench_baselines.weights import WeightsFile
 
-    moving = WeightsFile.find("cross3d", (16, 32), "moving")
+    moving = catalog.find_weights("cross3d", (16, 32), "moving")
     entry = catalog.named_weights("cross3d", (16, 32))["moving"]
     assert moving.path == entry.path and moving.sha256 == entry.sha256
     assert moving.resolution == (16, 32) and moving.frame_spec.window == 4096 and moving.delay_mode == "nearest"
     assert moving.describe()["weights"] == str(entry.path) and moving.array.n_mics == 12
-    same = WeightsFile.find("cross3d", (16, 32), str(entry.path))  # by path: the same file, the same hash
+    same = catalog.find_weights("cross3d", (16, 32), str(entry.path))  # by path: the same file, the same hash
     assert same.sha256 == moving.sha256
     with pytest.raises(Exception, match="holds a 'cross3d' model, not 'max-cnn1d'"):
-        WeightsFile.find("max-cnn1d", (64, 128), str(entry.path))
+        catalog.find_weights("max-cnn1d", (64, 128), str(entry.path))
+
+
+def test_which_weights_is_answered_by_the_catalog_alone():
+    """The learned trackers ask the catalog which weights they run (names, files, SHA-256, the
+    default) and work none of it out themselves; tests/test_architecture.py checks that the
+    catalog builds on the weights files' module and never the other way."""
+    from doabench_baselines.trackers.neural import NeuralTracker
+
+    source = inspect.getsource(NeuralTracker)
+    for derived in ("all_named(", "named_weights(", "read_catalog(", "read_manifest(", "SHIPPED_DIR", "WeightsFile"):
+        assert derived not in source, f"NeuralTracker works out {derived} itself instead of asking the catalog"
 
 
 def test_the_hold_rule_step_by_step_equals_the_whole_episode():

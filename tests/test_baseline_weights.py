@@ -10,6 +10,7 @@ import torch
 
 import doabench
 from doabench.errors import ConfigError, InputError, NotFoundError
+from doabench_baselines import catalog as C
 from doabench_baselines import weights as W
 from doabench_baselines.cross3d import Cross3D
 from doabench_baselines.trackers.cross3d import Cross3DTracker
@@ -130,7 +131,7 @@ def test_shipped_weights_are_found_and_set_the_default_resolution(tmp_path, monk
     _untrained(Cross3DTracker, "4x8", weights="random").save_weights(tmp_path / "cross3d-4x8.safetensors")
     tracker = Cross3DTracker()
     assert tracker.resolution == (4, 8) and tracker.trained
-    assert W.shipped_resolutions("cross3d") == [(4, 8)]
+    assert C.shipped_resolutions("cross3d") == [(4, 8)] and C.default_resolution("cross3d") == (4, 8)
     assert not _untrained(Cross3DTracker, "4x8", weights="random").trained  # weights=random overrides
 
 

@@ -1,7 +1,9 @@
 """What every learned tracker shares: its weights, its network, running it frame by frame or over
 an episode, and turning the network's output into a direction.
 
-The jobs around it live in their own modules: finding, verifying and describing the weights file
+The jobs around it live in their own modules: which weights it runs, by name or by default, and
+whether they are shipped or its default (:mod:`~doabench_baselines.catalog`: the tracker asks it
+and works none of that out itself), reading, verifying and describing the weights file
 (:class:`~doabench_baselines.weights.WeightsFile`), the device (:mod:`..device`), the hold rule
 (:class:`~doabench_baselines.hold.SilenceHold`), streaming (:mod:`..streaming`). Each model is a
 subclass in a module of its own (:mod:`.cross3d`, :mod:`.max_cnn1d`, :mod:`.gcc_cnn1d`,
@@ -21,7 +23,7 @@ from doabench.errors import ConfigError, TrackerError
 from .. import catalog
 from ..device import torch_device
 from ..hold import SilenceHold, parse_hold
-from ..weights import WeightsFile, make_metadata, parse_resolution, resolution_text, save_weights
+from ..weights import make_metadata, parse_resolution, resolution_text, save_weights
 
 # torch and the model modules are imported where a tracker is built or run, not at import time:
 # doabench loads these modules to list the registered trackers (`doabench list trackers`), which
@@ -65,7 +67,7 @@ class NeuralTracker(doabench.Tracker):
         self.allow_untrained = weights is not None and str(weights).lower() in _RANDOM
         res_text = resolution or spec
         asked = parse_resolution(res_text) if self.uses_resolution and res_text else None
-        self.weights_file = None if self.allow_untrained else WeightsFile.find(
+        self.weights_file = None if self.allow_untrained else catalog.find_weights(
             self.model_name, asked or (self._default_resolution() if self.uses_resolution else None), weights)
         self._resolution = self._pick_resolution(asked)
         if self.weights_file is not None and self.uses_resolution:
@@ -170,24 +172,15 @@ class NeuralTracker(doabench.Tracker):
         them carries no weights option (:func:`doabench.trackers.registry.canonical_tracker`)."""
         return catalog.plain_name(self.model_name, self._resolution)
 
+    @property
+    def loads_default_weights(self) -> bool:
+        """Whether the file it loaded is the one it runs without a weights option (the same SHA-256)."""
+        return catalog.is_default(self.model_name, self._resolution, self.weights_hash())
+
     @classmethod
     def shipped_weights(cls) -> list[dict[str, Any]]:
         """The catalog's entries of this model (every resolution), default first per tracker id."""
-        out = []
-        for e in catalog.all_named():
-            if e.tracker.partition(":")[0] != cls.model_name:
-                continue
-            res = parse_resolution(e.tracker.partition(":")[2]) if ":" in e.tracker else None
-            out.append({"tracker": e.tracker, "name": e.name, "default": catalog.default_name(cls.model_name, res) == e.name,
-                        "file": e.file, "sha256": e.sha256, "task": e.task, "run": e.run, "headline": dict(e.headline)})
-        return sorted(out, key=lambda d: (d["tracker"], not d["default"], d["name"]))
-
-    @classmethod
-    def named_weights(cls, spec: str | None) -> dict[str, str]:
-        """``{sha256: name}`` of the shipped weights of this tracker at ``spec`` (its resolution),
-        for reading a name back from a results file's hash."""
-        res = parse_resolution(spec) if cls.uses_resolution and spec else None
-        return {e.sha256: name for name, e in catalog.named_weights(cls.model_name, res).items() if e.sha256}
+        return catalog.listing(cls.model_name)
 
     def parameter_count(self) -> int:
         from ..layers import count_parameters

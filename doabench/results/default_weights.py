@@ -7,7 +7,10 @@
     eligible, the default is the tracker's plain weights.
 
 Pure functions of results dictionaries (the committed ``results/`` for the shipped catalog; a
-test's own files in the tests). ``scripts/weights_catalog.py`` applies it and writes the catalog.
+test's own files in the tests): which runs count, their figures, each candidate's verdict and the
+choice. The candidates and the plain weights to fall back on are the caller's to give: which
+weights ship, their names, files and SHA-256 are the catalog's (``doabench_baselines.catalog``),
+which ``scripts/weights_catalog.py`` asks before it applies this rule and writes the catalog.
 """
 from __future__ import annotations
 
@@ -34,25 +37,34 @@ class Verdict:
     reason: str
 
 
-def headline(runs: Iterable[Mapping[str, Any]], tracker: str, weights_hash: str) -> dict[str, dict[str, Any]]:
-    """Per task, the figures of the complete run of ``tracker`` (canonical id) with these weights on
-    the task's defaults: ``{"sim-walk": {"rmsae_all", "rmsae_nonsilent", "lag_s", "episodes"}}``
-    (two decimals). Runs with tracker options other than ``weights`` or task options do not count."""
-    out: dict[str, dict[str, Any]] = {}
+def counted_runs(runs: Iterable[Mapping[str, Any]], tracker: str, weights_hash: str) -> dict[str, Mapping[str, Any]]:
+    """Per task, the run the rule counts for ``tracker`` (canonical id) with these weights: a
+    complete run on the task's defaults (no task options, no tracker option but ``weights``, the
+    ``nearest`` SRP delays); the last such run where a task has several."""
+    out: dict[str, Mapping[str, Any]] = {}
     for r in runs:
         task, trk = r.get("task") or {}, r.get("tracker") or {}
-        if trk.get("weights_hash") != weights_hash or _canonical(r) != tracker:
+        if trk.get("weights_hash") != weights_hash or canonical_id(dict(r)) != tracker:
             continue
         if task.get("episodes_run") != task.get("episodes_total") or task.get("options"):
             continue
         if set(trk.get("options") or {}) - {"weights"} or (r.get("features") or {}).get("delays") not in (None, "nearest"):
             continue
+        out[str(task.get("id"))] = r
+    return out
+
+
+def headline(runs: Iterable[Mapping[str, Any]], tracker: str, weights_hash: str) -> dict[str, dict[str, Any]]:
+    """Per task, the figures of the run :func:`counted_runs` counts:
+    ``{"sim-walk": {"rmsae_all", "rmsae_nonsilent", "lag_s", "episodes"}}`` (two decimals)."""
+    out: dict[str, dict[str, Any]] = {}
+    for task, r in counted_runs(runs, tracker, weights_hash).items():
         s = r.get("summary") or {}
         lag = s.get("lag_s")
-        out[str(task.get("id"))] = {"rmsae_all": round(float(s["rmsae_all"]), 2),
-                                    "rmsae_nonsilent": round(float(s["rmsae_nonsilent"]), 2),
-                                    "lag_s": None if lag is None else round(float(lag), 2),
-                                    "episodes": int(task.get("episodes_run") or 0)}
+        out[task] = {"rmsae_all": round(float(s["rmsae_all"]), 2),
+                     "rmsae_nonsilent": round(float(s["rmsae_nonsilent"]), 2),
+                     "lag_s": None if lag is None else round(float(lag), 2),
+                     "episodes": int((r.get("task") or {}).get("episodes_run") or 0)}
     return dict(sorted(out.items()))
 
 
@@ -79,7 +91,3 @@ def choose(candidates: Mapping[str, Mapping[str, Mapping[str, Any]]], plain: str
     if not eligible:
         return plain, verdicts
     return min(eligible, key=lambda v: (v.score, v.name)).name, verdicts
-
-
-def _canonical(results: Mapping[str, Any]) -> str:
-    return canonical_id(dict(results))

@@ -148,6 +148,14 @@ class Tracker:
         plain weights: results made with them always carried no weights option); None: none."""
         return None
 
+    @property
+    def loads_default_weights(self) -> bool:
+        """Whether the weights file it loaded is the one it loads without a weights option (the same
+        SHA-256, wherever the file was read from): a run given that file by path then carries no
+        weights option (:func:`doabench.trackers.registry.canonical_tracker`). False for a tracker
+        without weights."""
+        return False
+
     @classmethod
     def shipped_weights(cls) -> list[dict[str, Any]]:
         """Every shipped weights file of this tracker, for ``doabench list weights``: dicts with
@@ -156,12 +164,6 @@ class Tracker:
         and ``headline`` (``{task: {"rmsae_all", "rmsae_nonsilent", "lag_s", "episodes"}}``, with
         ``lag_note`` saying why where ``lag_s`` is None)."""
         return []
-
-    @classmethod
-    def named_weights(cls, spec: str | None) -> dict[str, str]:
-        """``{sha256: name}`` of the shipped weights of this tracker at ``spec`` (empty: none). Results
-        files record the name a run had (``tracker.weights_name``); reading one never calls this."""
-        return {}
 
     def parameter_count(self) -> int:
         """Trainable parameters (0 for classical trackers)."""

@@ -143,10 +143,12 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
     * Shipped weights are named by their short name (``weights=moving``, however they were
       chosen: by name, by a path to the file or a copy of it, or as the default), except the
       tracker's plain weights (:attr:`Tracker.plain_weights_name`), which leave no option, as their
-      results always had. A tracker without named weights drops ``weights=FILE`` when the file is
-      the weights it loads by default (the same SHA-256).
+      results always had. A tracker without named weights drops ``weights=FILE`` when it says the
+      file is the weights it loads by default (:attr:`Tracker.loads_default_weights`).
 
-    ``tracker``: the instance built from ``text`` and ``options`` (built here when None)."""
+    ``tracker``: the instance built from ``text`` and ``options`` (built here when None); which
+    weights it runs is its own answer (its weights name, its plain weights, whether it loaded its
+    default), read from it alone."""
     import inspect
 
     options = dict(options or {})
@@ -178,19 +180,8 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
         else:
             options["weights"] = named
         return canonical, options
-    weights = options.get("weights")
-    if weights is not None and str(weights).lower() not in ("random", "none", "false", "") and tracker.weights_hash():
-        others = {k: v for k, v in options.items() if k != "weights"}
-        import warnings
-
-        try:
-            with warnings.catch_warnings():  # a model without default weights warns; here that is the answer
-                warnings.simplefilter("ignore")
-                default = make_tracker(canonical, **others).weights_hash()
-        except DoabenchError:
-            default = None
-        if default == tracker.weights_hash():
-            del options["weights"]
+    if tracker.loads_default_weights:
+        options.pop("weights", None)
     return canonical, options
 
 
