@@ -221,21 +221,23 @@ def _task_line(task: str) -> str:
 def compare_block(files: list[str], root: Path = ROOT) -> str:
     """``doabench compare`` on committed results files, in brief: per comparison the pooled
     RMSAE (all frames, voice-active) differences with their verdicts and the cells' tally."""
-    from doabench.reporting import compare as cmp
+    from doabench.reporting.compare import compare
+    from doabench.reporting.compare_report import cell_summary, diff_text
+    from doabench.reporting.pairing import distinct_labels, load_run
 
-    runs = [cmp.load_run(root / f) for f in files]
+    runs = [load_run(root / f) for f in files]
     for run, f in zip(runs, files):
         run.path = Path(f)
-    cmp._distinct_labels(runs)
+    distinct_labels(runs)
     rows = []
     for other in runs[1:]:
         # two tasks rendering the same scenes (sim-walk and sim-walk-pra) pair by scene seed
         by_seed = runs[0].task.get("id") != other.task.get("id")
-        c = cmp.compare(runs[0], other, only=("rmsae_all", "rmsae_nonsilent"), by_seed=by_seed)
+        c = compare(runs[0], other, only=("rmsae_all", "rmsae_nonsilent"), by_seed=by_seed)
         pooled = {r.metric.key: r for r in c.pooled}
         a, v = pooled["rmsae_all"], pooled["rmsae_nonsilent"]
-        rows.append([f"`{runs[0].label}` − `{other.label}`", f"{cmp._diff_text(a)}, {a.verdict}",
-                     f"{cmp._diff_text(v)}, {v.verdict}", cmp.cell_summary(c) or "—"])
+        rows.append([f"`{runs[0].label}` − `{other.label}`", f"{diff_text(a)}, {a.verdict}",
+                     f"{diff_text(v)}, {v.verdict}", cell_summary(c) or "—"])
     by_seed = any(r.task.get("id") != runs[0].task.get("id") for r in runs[1:])
     command = "doabench compare " + " ".join(files) + (" --by-seed" if by_seed else "")
     return "\n".join(_table(["difference", "RMSAE all frames (deg) [95% CI]", "RMSAE voice-active (deg) [95% CI]",
@@ -290,11 +292,11 @@ def motion_block(files: list[str], root: Path = ROOT) -> str:
 
 
 def _on_seeds(run: Any, seeds: set[Any]) -> Any:
-    """``run`` (a :class:`doabench.reporting.compare.Run`) restricted to the episodes of ``seeds``."""
-    from doabench.reporting import compare as cmp
+    """``run`` (a :class:`doabench.reporting.pairing.Run`) restricted to the episodes of ``seeds``."""
+    from doabench.reporting.pairing import Run
 
     rows = [row for row in run.rows if row.get("seed") in seeds]
-    return cmp.Run(run.path, {**run.results, "episodes": rows, "frames": None}, run.label)
+    return Run(run.path, {**run.results, "episodes": rows, "frames": None}, run.label)
 
 
 def engines_block(files: list[str], root: Path = ROOT) -> str:
@@ -302,9 +304,11 @@ def engines_block(files: list[str], root: Path = ROOT) -> str:
     and engine, the pooled RMSAE on the scenes the engines share, its rank among the trackers under
     that engine, and ``doabench compare --by-seed``'s paired difference against the first task's
     engine (the reference) with its 95 % interval; all frames, then voice-active frames."""
-    from doabench.reporting import compare as cmp
+    from doabench.reporting.compare import compare
+    from doabench.reporting.compare_report import diff_text
+    from doabench.reporting.pairing import load_run
 
-    runs = [cmp.load_run(root / f) for f in files]
+    runs = [load_run(root / f) for f in files]
     for run, f in zip(runs, files):
         run.path = Path(f)
     tasks = list(dict.fromkeys(str(r.task.get("id")) for r in runs))
@@ -317,7 +321,7 @@ def engines_block(files: list[str], root: Path = ROOT) -> str:
         raise ValueError(f"engines block: no results for {', '.join(missing)}")  # a docs source error
     lines: list[str] = []
     for metric, title in (("rmsae_all", "all frames"), ("rmsae_nonsilent", "voice-active frames")):
-        rows = {t: {e: next(r for r in cmp.compare(by_key[(e, t)], by_key[(reference, t)], only=(metric,),
+        rows = {t: {e: next(r for r in compare(by_key[(e, t)], by_key[(reference, t)], only=(metric,),
                                                    by_seed=True).pooled)
                     for e in engines} for t in trackers}
         ref_value = {t: rows[t][engines[0]].b for t in trackers}
@@ -329,7 +333,7 @@ def engines_block(files: list[str], root: Path = ROOT) -> str:
         ref_rank = ranks(ref_value)
         engine_rank = {e: ranks({t: rows[t][e].a for t in trackers}) for e in engines}
         table = [[f"`{t}`", f"{ref_value[t]:.2f} (#{ref_rank[t]})"]
-                 + [f"{rows[t][e].a:.2f} (#{engine_rank[e][t]}), {cmp._diff_text(rows[t][e])}" for e in engines]
+                 + [f"{rows[t][e].a:.2f} (#{engine_rank[e][t]}), {diff_text(rows[t][e])}" for e in engines]
                  for t in trackers]
         n = {rows[trackers[0]][e].n_episodes for e in engines}
         lines += [f"RMSAE over {title} (deg), pooled over the {'/'.join(map(str, sorted(n)))} scenes every engine "
@@ -343,11 +347,11 @@ def engines_block(files: list[str], root: Path = ROOT) -> str:
             swapped = [(t, u) for t in trackers for u in trackers
                        if ref_rank[t] < ref_rank[u] and engine_rank[e][t] > engine_rank[e][u]]
             for t, u in swapped:  # is either order more than noise? the pair's paired difference under both
-                under_ref = next(iter(cmp.compare(_on_seeds(by_key[(reference, t)], seeds),
+                under_ref = next(iter(compare(_on_seeds(by_key[(reference, t)], seeds),
                                                   _on_seeds(by_key[(reference, u)], seeds), only=(metric,)).pooled))
-                under_e = next(iter(cmp.compare(by_key[(e, t)], by_key[(e, u)], only=(metric,)).pooled))
-                lines.append(f"Swapped under `{e}`: `{t}` − `{u}` is {cmp._diff_text(under_ref)} ({under_ref.verdict}) "
-                             f"under `{reference}` and {cmp._diff_text(under_e)} ({under_e.verdict}) under `{e}`.")
+                under_e = next(iter(compare(by_key[(e, t)], by_key[(e, u)], only=(metric,)).pooled))
+                lines.append(f"Swapped under `{e}`: `{t}` − `{u}` is {diff_text(under_ref)} ({under_ref.verdict}) "
+                             f"under `{reference}` and {diff_text(under_e)} ({under_e.verdict}) under `{e}`.")
         lines.append("")
     commands = [f"`doabench compare {by_key[(e, t)].path} {by_key[(reference, t)].path} --by-seed`"
                 for t in trackers[:1] for e in engines]

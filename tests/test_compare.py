@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from doabench.cli.main import main
-from doabench.metrics import LAG_MAX_S, LAG_STEP_S, lag_grid
+from doabench.metrics import LAG_MAX_S, LAG_STEP_S, bootstrap_counts, lag_grid
 from doabench.reporting import compare as cmp
+from doabench.reporting import compare_report as report
+from doabench.reporting.pairing import load_run
 
 ROOT = Path(__file__).resolve().parents[1]
 UP, EAST, NORTH = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]
@@ -51,7 +53,7 @@ def test_paired_difference_pooled_and_per_cell(tmp_path, capsys):
     assert main(["compare", str(a), str(b), "--csv", str(tmp_path / "c.csv"), "--plot", str(tmp_path / "f")]) == 0
     out = capsys.readouterr().out
     assert "## `mine` against `cross3d:16x32`" in out and "8 episodes in common" in out
-    comparison = cmp.compare(cmp.load_run(a), cmp.load_run(b))
+    comparison = cmp.compare(load_run(a), load_run(b))
     pooled = {r.metric.key: r for r in comparison.pooled}
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     assert pooled["rmsae_all"].diff == pytest.approx(rms(np.add(BASE, 2.0)) - rms(BASE))
@@ -67,15 +69,15 @@ def test_paired_difference_pooled_and_per_cell(tmp_path, capsys):
     assert rows[0]["metric"] == "rmsae_all" and rows[0]["verdict"] == "worse"
     assert (tmp_path / "f.png").stat().st_size > 0 and (tmp_path / "f.pdf").is_file()
     # the other way round: better, and a tie against itself
-    swapped = cmp.compare(cmp.load_run(b), cmp.load_run(a))
+    swapped = cmp.compare(load_run(b), load_run(a))
     assert swapped.pooled[0].verdict == cmp.BETTER
-    same = cmp.compare(cmp.load_run(b), cmp.load_run(_write(tmp_path, "b2.json", _results("other", BASE))))
+    same = cmp.compare(load_run(b), load_run(_write(tmp_path, "b2.json", _results("other", BASE))))
     assert same.pooled[0].diff == 0 and same.pooled[0].verdict == cmp.TIE
 
 
 def test_bootstrap_is_stratified_by_cell():
     strata = [np.array([0, 2, 4]), np.array([1, 3])]
-    counts = cmp.bootstrap_counts(strata, 5, n_resamples=200, seed=1)
+    counts = bootstrap_counts(strata, 5, n_resamples=200, seed=1)
     assert counts.shape == (200, 5)
     assert np.all(counts[:, [0, 2, 4]].sum(1) == 3) and np.all(counts[:, [1, 3]].sum(1) == 2)
 
@@ -124,10 +126,10 @@ def test_bad_options_are_one_line_errors(tmp_path, capsys):
 def test_lag_is_compared_where_present(tmp_path):
     a = _write(tmp_path, "a.json", _results("late", BASE, lag_at=0.5))
     b = _write(tmp_path, "b.json", _results("prompt", BASE, lag_at=0.0))
-    lag = next(r for r in cmp.compare(cmp.load_run(a), cmp.load_run(b)).pooled if r.metric.key == "lag_s")
+    lag = next(r for r in cmp.compare(load_run(a), load_run(b)).pooled if r.metric.key == "lag_s")
     assert (lag.a, lag.b, lag.diff) == pytest.approx((0.5, 0.0, 0.5)) and lag.verdict == cmp.WORSE
     # files without lag rows (static sources, older files) have no lag row
-    plain = cmp.compare(cmp.load_run(_write(tmp_path, "c.json", _results("c", BASE))), cmp.load_run(b))
+    plain = cmp.compare(load_run(_write(tmp_path, "c.json", _results("c", BASE))), load_run(b))
     assert "lag_s" not in {r.metric.key for r in plain.pooled}
 
 
@@ -151,7 +153,7 @@ def test_silence_breakdown_and_hold_the_truth(tmp_path, capsys):
     assert "| after the first voice (all but the row above) | 6 | 51.96 | 0.50 |" in out
     # the oracle: 90 (nothing heard yet), 0, 90 (up -> east), 0
     assert "RMSAE all frames 63.64 deg" in out
-    rows = {r.metric.key: r for r in cmp.compare(cmp.load_run(stay), cmp.load_run(perfect), silence=True,
+    rows = {r.metric.key: r for r in cmp.compare(load_run(stay), load_run(perfect), silence=True,
                                                  holds=[1]).pooled}
     assert rows["rmsae_before_first_voice"].a == pytest.approx(90.0) and rows["rmsae_before_first_voice"].b == 0
     assert rows["median"].a == pytest.approx(0.0) and rows["p90"].b == pytest.approx(0.0)
@@ -169,7 +171,7 @@ def test_shipped_results_pool_as_the_leaderboards_do(capsys):
     a, b = ROOT / "results" / "sim-fan__gcc-cnn1d__paper.json", ROOT / "results" / "sim-fan__cross3d_16x32__paper.json"
     if not (a.is_file() and b.is_file()):
         pytest.skip("shipped results not present")
-    c = cmp.compare(cmp.load_run(a), cmp.load_run(b), n_resamples=200)
+    c = cmp.compare(load_run(a), load_run(b), n_resamples=200)
     ra, rb = (json.loads(p.read_text())["summary"] for p in (a, b))
     pooled = {r.metric.key: r for r in c.pooled}
     assert pooled["rmsae_all"].a == pytest.approx(ra["rmsae_all"]) and pooled["rmsae_all"].b == pytest.approx(rb["rmsae_all"])
@@ -189,12 +191,12 @@ def test_two_renderings_of_the_same_scenes_pair_by_seed(tmp_path, capsys):
     assert "only runs of the same task" in capsys.readouterr().err
     assert main(["compare", str(a), str(b), "--by-seed"]) == 0
     assert "4 episodes in common" in capsys.readouterr().out
-    comparison = cmp.compare(cmp.load_run(b), cmp.load_run(a), by_seed=True)
+    comparison = cmp.compare(load_run(b), load_run(a), by_seed=True)
     assert comparison.pooled[0].diff == pytest.approx(
         float(np.sqrt(np.mean(np.square(np.add(BASE[:4], 1.0))))) - float(np.sqrt(np.mean(np.square(BASE[:4])))))
     no_shared = _results("srp-max:32x64", BASE, task="sim-walk-pra", seeds=list(range(900, 908)))
     with pytest.raises(Exception, match="share no scene seed"):
-        cmp.compare(cmp.load_run(a), cmp.load_run(_write(tmp_path, "other.json", no_shared)), by_seed=True)
+        cmp.compare(load_run(a), load_run(_write(tmp_path, "other.json", no_shared)), by_seed=True)
 
 
 def _with_bands(results: dict, fast_episodes: int = 1) -> dict:
@@ -214,7 +216,7 @@ def test_a_line_backed_by_too_few_episodes_gets_no_verdict(tmp_path, capsys):
     Markdown, the CSV and the forest plot alike."""
     a = _write(tmp_path, "a.json", _with_bands(_results("mine", [e + 2.0 for e in BASE], cells=1)))
     b = _write(tmp_path, "b.json", _with_bands(_results("other", BASE, cells=1)))
-    c = cmp.compare(cmp.load_run(a), cmp.load_run(b))
+    c = cmp.compare(load_run(a), load_run(b))
     pooled = {r.metric.key: r for r in c.pooled}
     assert pooled["rmsae_all"].n_contributing == 8 and pooled["rmsae_all"].verdict == cmp.WORSE
     fast = pooled["rmsae_speed_>30"]
@@ -225,7 +227,7 @@ def test_a_line_backed_by_too_few_episodes_gets_no_verdict(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "| metric | n |" in out
     line = next(x for x in out.splitlines() if x.startswith("| RMSAE voice-active, truth moving >30 deg/s"))
-    assert line.endswith(f"| 1 | {cmp._fmt(fast.a, 'deg')} | {cmp._fmt(fast.b, 'deg')} | {cmp._fmt(fast.diff, 'deg', True)} "
+    assert line.endswith(f"| 1 | {report._fmt(fast.a, 'deg')} | {report._fmt(fast.b, 'deg')} | {report._fmt(fast.diff, 'deg', True)} "
                          "| too few episodes |"), line
     assert "[" not in line and "worse" not in line
     rows = {r["metric"]: r for r in csv.DictReader((tmp_path / "c.csv").open())}
@@ -234,12 +236,12 @@ def test_a_line_backed_by_too_few_episodes_gets_no_verdict(tmp_path, capsys):
     # the forest plot: the RMSAE line in its verdict's colour with its interval, the other hollow and bare
     import matplotlib.pyplot as plt
 
-    fig = cmp.forest_figure([c], metrics=("rmsae_all", "rmsae_speed_>30"))
+    fig = report.forest_figure([c], metrics=("rmsae_all", "rmsae_speed_>30"))
     left, right = fig.axes[:2]
     assert len(left.containers) == 1 and right.containers == []
     hollow = [ln for ln in right.lines if ln.get_marker() not in (None, "None", "")]
     assert len(hollow) == 1 and hollow[0].get_markerfacecolor() == "none"
-    assert hollow[0].get_color() not in cmp.VERDICT_COLOURS.values()
+    assert hollow[0].get_color() not in report.VERDICT_COLOURS.values()
     plt.close(fig)
 
 
@@ -248,8 +250,8 @@ def test_the_episodes_a_verdict_needs_can_be_set_and_cells_count_too_few(tmp_pat
     episodes are too few for a verdict, and the cell tally says so."""
     a = _write(tmp_path, "a.json", _results("mine", [e + 2.0 for e in BASE[:3]], cells=1))
     b = _write(tmp_path, "b.json", _results("other", BASE[:3], cells=1))
-    assert cmp.compare(cmp.load_run(a), cmp.load_run(b)).pooled[0].verdict == cmp.TOO_FEW
-    assert cmp.compare(cmp.load_run(a), cmp.load_run(b), min_episodes=3).pooled[0].verdict == cmp.WORSE
+    assert cmp.compare(load_run(a), load_run(b)).pooled[0].verdict == cmp.TOO_FEW
+    assert cmp.compare(load_run(a), load_run(b), min_episodes=3).pooled[0].verdict == cmp.WORSE
     assert main(["compare", str(a), str(b), "--min-episodes", "3"]) == 0
     assert "| RMSAE all frames (deg) | 3 |" in capsys.readouterr().out
     assert main(["compare", str(a), str(b), "--min-episodes", "1"]) == 2
@@ -257,9 +259,9 @@ def test_the_episodes_a_verdict_needs_can_be_set_and_cells_count_too_few(tmp_pat
     assert "--min-episodes must be at least 2" in err and len(err.strip().splitlines()) == 1
     grid_a = _write(tmp_path, "ga.json", _results("mine", [e + 2.0 for e in BASE]))
     grid_b = _write(tmp_path, "gb.json", _results("other", BASE))
-    grid = cmp.compare(cmp.load_run(grid_a), cmp.load_run(grid_b))
+    grid = cmp.compare(load_run(grid_a), load_run(grid_b))
     assert all(r.verdict == cmp.TOO_FEW for r in grid.cells) and grid.pooled[0].verdict == cmp.WORSE
-    assert cmp.cell_summary(grid) == ("better in 0, worse in 0, no significant difference in 0, too few episodes in 2 "
+    assert report.cell_summary(grid) == ("better in 0, worse in 0, no significant difference in 0, too few episodes in 2 "
                                       "of 2 cells")
 
 
@@ -274,7 +276,7 @@ def test_cells_of_one_or_two_episodes_are_not_resampled_within_themselves(tmp_pa
     gain = list(rng.normal(-3.0, 6.0, 12 * per_cell))  # differences that vary from episode to episode
     a = _write(tmp_path, "a.json", _results("mine", [max(e + g, 0.5) for e, g in zip(base, gain)], cells=12))
     b = _write(tmp_path, "b.json", _results("other", base, cells=12))
-    c = cmp.compare(cmp.load_run(a), cmp.load_run(b))
+    c = cmp.compare(load_run(a), load_run(b))
     headline = c.pooled[0]
     assert headline.metric.key == "rmsae_all" and headline.bootstrap == cmp.ACROSS
     # the interval of the unstratified paired bootstrap over all episodes, not a stratified one
@@ -291,7 +293,7 @@ def test_cells_of_one_or_two_episodes_are_not_resampled_within_themselves(tmp_pa
     assert rows[0]["scope"] == "pooled" and rows[0]["bootstrap"] == cmp.ACROSS
     import matplotlib.pyplot as plt
 
-    fig = cmp.forest_figure([c])
+    fig = report.forest_figure([c])
     assert "drawn across cells" in fig._suptitle.get_text()
     plt.close(fig)
 
@@ -300,6 +302,6 @@ def test_cells_of_five_episodes_or_more_are_resampled_within_themselves(tmp_path
     """Two cells of five paired episodes: the pooled lines draw within each cell (stratified)."""
     a = _write(tmp_path, "a.json", _results("mine", [e + 2.0 for e in BASE + BASE[:2]]))
     b = _write(tmp_path, "b.json", _results("other", BASE + BASE[:2]))
-    c = cmp.compare(cmp.load_run(a), cmp.load_run(b))
+    c = cmp.compare(load_run(a), load_run(b))
     assert c.pooled[0].bootstrap == cmp.STRATIFIED and not any("across the whole task" in n for n in c.notes)
     assert {r.bootstrap for r in c.cells} == {cmp.ACROSS}

@@ -431,7 +431,9 @@ def test_a_name_in_a_results_file_loads_no_plug_in(tmp_path: Path, monkeypatch) 
     from importlib import metadata
 
     import doabench.plugins as plugins
-    from doabench.reporting import compare as cmp
+    from doabench.reporting.compare import compare
+    from doabench.reporting.compare_report import markdown
+    from doabench.reporting.pairing import load_run
 
     (tmp_path / "evilmod.py").write_text(MARKING_MODULE)
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -460,8 +462,8 @@ def test_a_name_in_a_results_file_loads_no_plug_in(tmp_path: Path, monkeypatch) 
     prefixed.mkdir()
     (prefixed / "r.json").write_text(json.dumps({**results, "task": {**results["task"], "id": "evilfile:x"}}))
     assert "evilfile_x.md" in build_leaderboards(prefixed)
-    runs = [cmp.load_run(folder / "sim-grid__evil.json"), cmp.load_run(folder / "sim-grid__srp-max_8x16.json")]
-    assert "`evil:16x32 (weights=evil.safetensors)`" in cmp.markdown([cmp.compare(*runs)])
+    runs = [load_run(folder / "sim-grid__evil.json"), load_run(folder / "sim-grid__srp-max_8x16.json")]
+    assert "`evil:16x32 (weights=evil.safetensors)`" in markdown([compare(*runs)])
     assert "evilmod" not in sys.modules and not (tmp_path / "IMPORTED").exists()
 
 

@@ -119,13 +119,21 @@ def test_huge_or_tiny_direction_is_scored_as_the_direction_it_is(scale):
 
 def test_one_bootstrap_serves_results_files_and_compare() -> None:
     """A results file's interval is the one-stratum case of compare's stratified bootstrap: the
-    same draws, the same numbers; compare has no resampler of its own."""
+    same draws, the same numbers; the paired bootstrap draws with the same resampler and takes the
+    same percentile interval, and no module of compare resamples or takes percentiles of its own."""
     import inspect
 
+    import doabench.metrics.paired as paired
     import doabench.reporting.compare as cmp
-    from doabench.metrics import bootstrap_ci_from_sums, bootstrap_counts
+    import doabench.reporting.compare_report as report
+    import doabench.reporting.pairing as pairing
+    import doabench.reporting.silence as silence
+    from doabench.metrics import bootstrap_ci_from_sums, bootstrap_counts, percentile_interval
 
-    assert cmp.bootstrap_counts is bootstrap_counts and "default_rng" not in inspect.getsource(cmp)
+    assert paired.bootstrap_counts is bootstrap_counts and paired.percentile_interval is percentile_interval
+    for module in (cmp, report, pairing, silence):
+        source = inspect.getsource(module)
+        assert "default_rng" not in source and "percentile(" not in source and "def _rms" not in source, module
     rng = np.random.default_rng(2)
     n = rng.integers(40, 120, 30).astype(float)
     sq = rng.uniform(3.0, 30.0, 30) ** 2 * n

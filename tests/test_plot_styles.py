@@ -220,7 +220,7 @@ def test_no_render_help_matches_what_is_drawn(tmp_path: Path, capsys) -> None:
 
 
 def test_leaderboards_comparisons_and_legends_name_a_configuration_alike():
-    from doabench.reporting.compare import run_label
+    from doabench.results.labels import run_label
     from doabench.results.ranking import RunFile
 
     results = {"tracker": {"id": "srp-kalman:32x64", "options": {"weights": "/tmp/x/model.safetensors", "alpha": 0.5}},

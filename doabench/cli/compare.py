@@ -59,8 +59,11 @@ def _holds(text: str | None) -> list[int]:
 def main(args: argparse.Namespace) -> int:
     from doabench.cli.common import check_output_file
     from doabench.errors import ConfigError, InputError
-    from doabench.reporting import compare as cmp
     from doabench.files import write_text
+    from doabench.reporting.compare import compare
+    from doabench.reporting.compare_report import csv_text, markdown, plot_forest
+    from doabench.reporting.pairing import distinct_labels, frames_by_episode, load_run
+    from doabench.reporting.silence import held_rmsae, hold_the_truth, silence_breakdown
 
     holds = _holds(args.hold)
     if args.resamples < 100:
@@ -75,40 +78,40 @@ def main(args: argparse.Namespace) -> int:
     if args.plot:
         for out in cmp_output_paths(args.plot):
             check_output_file(out, paths, "--plot")
-    runs = [cmp.load_run(p) for p in paths]
+    runs = [load_run(p) for p in paths]
     # the first file again (a glob that matches it too) is not compared with itself
     first, others = runs[0], [r for r in runs[1:] if r.path.resolve() != runs[0].path.resolve()]
     if not others and not args.silence:
         raise InputError(f"nothing to compare {first.path} with: give another results file of the same task")
-    cmp._distinct_labels([first, *others])
-    comparisons = [cmp.compare(first, other, args.silence, holds, args.resamples, args.seed, by_seed=args.by_seed,
+    distinct_labels([first, *others])
+    comparisons = [compare(first, other, args.silence, holds, args.resamples, args.seed, by_seed=args.by_seed,
                                min_episodes=args.min_episodes) for other in others]
     breakdowns = []
     if args.silence:
         if comparisons:  # each run over the episodes it shares with the first (all compared runs share them)
             compared = [(first, comparisons[0].pairing.frames_a)] + [(c.pairing.b, c.pairing.frames_b)
                                                                       for c in comparisons]
-            # none is dropped: with --silence, cmp.compare refuses a run without per-frame estimates
+            # none is dropped: with --silence, compare() refuses a run without per-frame estimates
             pairs = [(run, run_frames) for run, run_frames in compared if run_frames is not None]
         else:
-            frames = cmp._frames_by_episode(first)
+            frames = frames_by_episode(first)
             if frames is None:
                 raise InputError(f"--silence needs per-frame estimates, which {first.path} lacks (written with "
                                  "--no-frames); run it again without --no-frames")
             pairs = [(first, [frames[k] for k in sorted(frames)])]
-        breakdowns = [(run, cmp.silence_breakdown(frames), cmp.hold_the_truth(frames),
-                       {h: cmp.held_rmsae(frames, h) for h in holds}) for run, frames in pairs]
+        breakdowns = [(run, silence_breakdown(frames), hold_the_truth(frames),
+                       {h: held_rmsae(frames, h) for h in holds}) for run, frames in pairs]
     cell_metrics = [m.strip() for m in args.cell_metrics.split(",") if m.strip()]
-    sys.stdout.write(cmp.markdown(comparisons, cell_metrics, breakdowns, args.resamples))
+    sys.stdout.write(markdown(comparisons, cell_metrics, breakdowns, args.resamples))
     if args.csv:
         if not comparisons:
             raise InputError("--csv needs two or more results files to compare")
-        write_text(args.csv, cmp.csv_text(comparisons))
+        write_text(args.csv, csv_text(comparisons))
         print(f"wrote {args.csv}", file=sys.stderr)
     if args.plot:
         if not comparisons:
             raise InputError("--plot needs two or more results files to compare")
-        for path in cmp.plot_forest(comparisons, args.plot):
+        for path in plot_forest(comparisons, args.plot):
             print(f"wrote {path}", file=sys.stderr)
     return 0
 
