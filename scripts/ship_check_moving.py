@@ -32,7 +32,8 @@ import math
 import sys
 from pathlib import Path
 
-from doabench.reporting.compare import Run, compare, load_run
+from doabench.reporting.compare import compare
+from doabench.reporting.pairing import Run, load_run
 
 ROOT = Path(__file__).resolve().parents[1]
 MOVING_TASKS = ("sim-walk", "sim-turn")
