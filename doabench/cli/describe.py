@@ -195,13 +195,15 @@ def _run_epochs(run: str | None) -> int | None:
     """The last epoch in a shipped run's committed ``log.csv`` (None outside a checkout that has it)."""
     if not run or "/" in run or run in (".", ".."):
         return None
-    log = training_runs_dir() / run / "log.csv"
+    from doabench.errors import InputError
+    from doabench.reporting.plots import read_training_log
+
     try:
-        with open(log, newline="") as f:
-            epochs = [int(row["epoch"]) for row in csv.DictReader(f) if (row.get("epoch") or "").isdigit()]
-    except (OSError, KeyError, ValueError, csv.Error):
+        epochs = read_training_log(training_runs_dir() / run / "log.csv")["epoch"]
+    except (OSError, InputError, csv.Error):
         return None
-    return max(epochs) if epochs else None
+    epochs = epochs[epochs == epochs]  # NaN cells are not epochs
+    return int(epochs.max()) if epochs.size else None
 
 
 def _figure_lines(entry: Mapping[str, Any] | None) -> list[str]:
