@@ -1,5 +1,6 @@
 """Named plug-ins: one registry type, with one set of rules, for every kind of thing doabench lets a
-package add (trackers, task kinds, task-id prefixes, feature kinds, room simulators).
+package add (trackers, task kinds, task-id prefixes, feature kinds, room simulators), and the task ids
+themselves (:class:`VersionedRegistry`: the same rules, with Gymnasium's version discipline).
 
 The rules, the same for each :class:`Registry`:
 
@@ -29,7 +30,7 @@ from doabench.errors import ConfigError, DoabenchError, NotFoundError, one_line
 
 T = TypeVar("T")
 
-__all__ = ["OWN_PACKAGES", "Registry", "UnknownNameError"]
+__all__ = ["OWN_PACKAGES", "Registry", "UnknownNameError", "VersionedRegistry"]
 
 #: The import packages of doabench's own distribution: their entry points are doabench's code.
 OWN_PACKAGES = ("doabench", "doabench_baselines")
@@ -50,17 +51,20 @@ def _same(a: Any, b: Any) -> bool:
 class Registry(Generic[T]):
     """Names -> objects of one kind (module docstring: the rules).
 
-    ``what``: the noun in messages (``"tracker"``); ``group``: the entry-point group;
+    ``what``: the noun in messages (``"tracker"``); ``group``: the entry-point group (None: names
+    are only registered at run time);
     ``check(name, obj) -> obj``: validates (and may adapt) what is registered, raising a
     DoabenchError for something this registry cannot hold. ``builtins``: entries defined in code
     rather than declared (the feature kinds doabench computes itself), registered from the start.
     ``declares_own``: doabench declares entries in the group itself, so a group with none means
-    stale installed metadata (an unknown name then says to reinstall).
+    stale installed metadata (an unknown name then says to reinstall). ``listing``: said in an unknown
+    name's message instead of every available name (a registry too long to list on one line).
     """
 
-    def __init__(self, what: str, group: str, check: Callable[[str, Any], T] | None = None,
-                 builtins: Mapping[str, T] | None = None, declares_own: bool = False) -> None:
-        self.what, self.group, self.declares_own = what, group, declares_own
+    def __init__(self, what: str, group: str | None, check: Callable[[str, Any], T] | None = None,
+                 builtins: Mapping[str, T] | None = None, declares_own: bool = False,
+                 listing: str | None = None) -> None:
+        self.what, self.group, self.declares_own, self.listing = what, group, declares_own, listing
         self._check = check
         self._entries: dict[str, T] = dict(builtins or {})
         self._loading: set[str] = set()  # entry points being loaded: their module may register itself
@@ -88,14 +92,27 @@ class Registry(Generic[T]):
         self._broken.pop(name, None)
         return value
 
+    def withdraw(self, name: str, reason: str) -> None:
+        """Take ``name`` out (a definition that could not stand, found after it was registered):
+        asking for it raises ``reason`` (a ConfigError), every other name keeps working."""
+        self._entries.pop(name, None)
+        self._broken[name] = reason
+
+    def broken(self, name: str) -> str | None:
+        """Why ``name`` cannot be had (withdrawn, or its plug-in failed to load), or None."""
+        return self._broken.get(name)
+
     # -- what there is ------------------------------------------------------------------------
     def declared(self) -> dict[str, metadata.EntryPoint]:
         """The entry points of the group, by name (none is loaded)."""
+        if self.group is None:
+            return {}
         return {ep.name: ep for ep in metadata.entry_points(group=self.group)}
 
     def _claims(self, name: str) -> list[str]:
         """The different targets declared for ``name`` (more than one: two packages claim it)."""
-        targets = {ep.value.replace(" ", ""): ep for ep in metadata.entry_points(group=self.group) if ep.name == name}
+        declared = metadata.entry_points(group=self.group) if self.group is not None else ()
+        targets = {ep.value.replace(" ", ""): ep for ep in declared if ep.name == name}
         return [f"{getattr(ep.dist, 'name', None) or 'a package'}: {value}" for value, ep in targets.items()]
 
     def names(self) -> list[str]:
@@ -124,9 +141,12 @@ class Registry(Generic[T]):
     # -- getting ------------------------------------------------------------------------------
     def find(self, name: str) -> tuple[str, T] | None:
         """``(registered name, object)`` for ``name``, loading its entry point on first use; None
-        when nobody registered or declared it. A broken plug-in raises (one line, naming it)."""
+        when nobody registered or declared it. A broken plug-in or a withdrawn name raises (one
+        line, naming it)."""
         key = self.match(name)
         if key is None:
+            if name in self._broken:
+                raise ConfigError(self._broken[name])
             return None
         if key not in self._entries:
             self._load(key)
@@ -165,7 +185,8 @@ class Registry(Generic[T]):
         if self.declares_own and not self.declared():
             hint += (f"; the installed doabench metadata declares no {self.group} entry points: reinstall "
                      "doabench (pip install -e .)")
-        return UnknownNameError(f"{context}unknown {self.what} {name!r}{hint} (available: {', '.join(known) or 'none'})")
+        available = self.listing or f"available: {', '.join(known) or 'none'}"
+        return UnknownNameError(f"{context}unknown {self.what} {name!r}{hint} ({available})")
 
     def load_all(self) -> dict[str, T]:
         """Every entry, each declared one loaded, sorted by name. A plug-in that fails to load is
@@ -216,3 +237,65 @@ def _describe(obj: Any) -> str:
     if module and qualname:
         return f"{module}.{qualname}"
     return repr(obj)
+
+
+class VersionedRegistry(Generic[T]):
+    """Ids with versions, Gymnasium's way: ``id`` is the latest version, ``id-vN`` exactly version
+    N, and a version that does not exist is a NotFoundError naming those that do.
+
+    The ids are a :class:`Registry` (its rules: exact or the one case-insensitive match, a
+    did-you-mean for an unknown id, a withdrawn id raising its reason) whose entries are each id's
+    ``{version: object}`` map. ``version(obj)`` reads an object's version; ``namespace`` is a
+    prefix an id may be typed with (``"doabench/"``: Gymnasium's ids). An id that is itself
+    registered wins over reading its ``-vN`` ending as a version.
+    """
+
+    def __init__(self, what: str, version: Callable[[T], int], namespace: str = "", listing: str | None = None) -> None:
+        self.ids: Registry[dict[int, T]] = Registry(what, None, listing=listing)
+        self._version, self.namespace = version, namespace
+
+    def register(self, name: str, obj: T, replace: bool = False) -> T:
+        """Add ``obj`` as version ``version(obj)`` of ``name``; another object under a taken version
+        is a ConfigError naming the holder (the same object again is not), unless ``replace`` (the
+        caller's own rule found the two to be one definition, edited)."""
+        found = self.ids.find(name) if self.ids.broken(name) is None else None
+        versions = found[1] if found is not None and found[0] == name else self.ids.register(name, {})
+        number = self._version(obj)
+        held = versions.get(number)
+        if held is not None and not replace and not _same(held, obj) and held != obj:
+            raise ConfigError(f"{self.ids.what} {name!r} version {number} is already registered by {_describe(held)}")
+        versions[number] = obj
+        return obj
+
+    def withdraw(self, name: str, reason: str) -> None:
+        """Take every version of ``name`` out: asking for it raises ``reason`` (a ConfigError)."""
+        self.ids.withdraw(name, reason)
+
+    def broken(self, name: str) -> str | None:
+        return self.ids.broken(name)
+
+    def versions(self, name: str) -> dict[int, T]:
+        """Every version of ``name``, oldest first (empty when unknown)."""
+        found = self.ids.find(name) if self.ids.broken(name) is None else None
+        return dict(sorted(found[1].items())) if found is not None else {}
+
+    def latest(self) -> dict[str, T]:
+        """Each id's latest version, sorted by id."""
+        return {name: versions[max(versions)] for name, versions in sorted(self.ids.registered().items()) if versions}
+
+    def get(self, text: str) -> T:
+        """The object ``text`` names: ``id`` or ``<namespace>id`` (the latest version), ``id-vN``
+        or ``<namespace>id-vN`` (exactly N)."""
+        key = text.removeprefix(self.namespace)
+        found = self.ids.find(key)
+        if found is not None and found[1]:
+            return found[1][max(found[1])]
+        base, sep, number = key.rpartition("-v")
+        if sep and number.isdigit() and (found := self.ids.find(base)) is not None and found[1]:
+            versions = found[1]
+            if int(number) not in versions:
+                have = ", ".join(f"v{v}" for v in sorted(versions))
+                raise NotFoundError(f"{self.ids.what} {found[0]!r} has no version {int(number)} (registered: {have}; "
+                                    f"`{self.namespace}{found[0]}-v{max(versions)}` or `{found[0]}` is the latest)")
+            return versions[int(number)]
+        raise self.ids.unknown(key)

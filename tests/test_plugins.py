@@ -94,6 +94,30 @@ def test_a_taken_name_is_refused_in_every_registry(register, name):
         register(name, Impostor)
 
 
+def test_versioned_ids_follow_gymnasiums_discipline():
+    """``id`` is the latest version, ``id-vN`` exactly N; an unknown version names those that exist;
+    an id that is itself registered is not read as a version; a withdrawn id raises its reason."""
+    from doabench.plugins import VersionedRegistry
+
+    reg: VersionedRegistry[tuple[str, int]] = VersionedRegistry("widget", lambda w: w[1], namespace="ns/")
+    one, two, odd = ("a", 1), ("a", 2), ("a-v7", 0)
+    for w in (two, one, odd):
+        reg.register(w[0], w)
+    assert reg.get("a") is two and reg.get("ns/a") is two and reg.get("a-v1") is one and reg.get("ns/a-v2") is two
+    assert reg.get("a-v7") is odd and list(reg.versions("a")) == [1, 2] and reg.latest() == {"a": two, "a-v7": odd}
+    with pytest.raises(NotFoundError, match=r"widget 'a' has no version 9 \(registered: v1, v2; `ns/a-v2` or `a`"):
+        reg.get("ns/a-v9")
+    with pytest.raises(NotFoundError, match=r"unknown widget 'b-v1'; did you mean 'a-v7'\? \(available: a, a-v7\)"):
+        reg.get("b-v1")
+    with pytest.raises(ConfigError, match="widget 'a' version 2 is already registered"):
+        reg.register("a", ("a", 2, "edited"))
+    reg.register("a", ("a", 2, "edited"), replace=True)
+    reg.withdraw("a", "a.toml is broken")
+    with pytest.raises(ConfigError, match="a.toml is broken"):
+        reg.get("a-v1")
+    assert reg.versions("a") == {} and reg.get("a-v7") is odd
+
+
 def test_a_feature_kind_cannot_take_a_built_in_name():
     with pytest.raises(ConfigError, match="taken"):
         doabench.features.register_feature_kind(kinds.feature_kind("srp"))

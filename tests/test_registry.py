@@ -30,7 +30,7 @@ def test_gym_id_and_plain_id_resolve_to_the_same_spec():
 
 
 def test_unknown_task_lists_close_matches():
-    with pytest.raises(NotFoundError, match="did you mean sim-demo"):
+    with pytest.raises(NotFoundError, match="did you mean 'sim-demo'"):
         doabench.get_task_spec("sim-dmeo")
 
 
@@ -224,3 +224,38 @@ def test_older_task_versions_stay_runnable_and_an_unknown_version_names_those_th
     with pytest.raises(ConfigError, match="defined|registered"):
         register_task(tmp_path / "x.toml")
     assert get_task_spec("sim-demo").version != 99
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--tracker", "srp-max", "--task", "sim-grid-v99", "--out", "{tmp}"],
+    ["sweep", "--trackers", "srp-max", "--tasks", "sim-demo,doabench/sim-grid-v99", "--out", "{tmp}"],
+    ["make-dataset", "--task", "sim-grid-v99", "--out", "{tmp}/d.h5"],
+    ["train", "--tracker", "cross3d", "--task", "doabench/sim-grid-v99", "--out", "{tmp}/t"],
+    ["describe", "--task", "sim-grid-v99"],
+    ["simulate", "--task", "sim-grid-v99", "--out", "{tmp}/s"],
+    ["plot", "maps", "--task", "sim-grid-v99", "--frame", "0", "--out", "{tmp}/m"],
+], ids=lambda argv: argv[0] if argv[0] != "plot" else "plot-maps")
+def test_every_entry_point_refuses_an_unknown_task_version_in_one_line(argv, tmp_path, capsys):
+    """A typed task id with a version that does not exist: exit 2, one line naming the versions
+    there are, nothing written."""
+    assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "task 'sim-grid' has no version 99 (registered: v2;" in err, err
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("call", [
+    lambda: doabench.get_task_spec("doabench/sim-grid-v99"),
+    lambda: doabench.run(tracker="srp-max", task="sim-grid-v99", episodes=1, progress=False),
+    lambda: __import__("doabench.envs.env", fromlist=["DoaEnv"]).DoaEnv("doabench/sim-grid-v99"),
+], ids=["get_task_spec", "run", "DoaEnv"])
+def test_the_python_entry_points_refuse_an_unknown_task_version(call):
+    with pytest.raises(NotFoundError, match=r"task 'sim-grid' has no version 99 \(registered: v2;"):
+        call()
+
+
+def test_gymnasium_make_names_the_versions_that_exist():
+    with pytest.raises(gymnasium.error.VersionNotFound, match=r"`v99` for environment `doabench/sim-grid` doesn't exist.* \[ `v2` \]"):
+        gymnasium.make("doabench/sim-grid-v99")
+    with pytest.raises(NotFoundError, match=r"task 'sim-fan' has no version 9 \(registered: v1, v2, v3;"):
+        doabench.get_task_spec("sim-fan-v9")

@@ -177,13 +177,16 @@ def main(args: argparse.Namespace) -> int:
                               dtype=args.export_dtype)
         print(f"wrote {path}")
         return 0
-    check_trainable(make_tracker(args.tracker, **options), args.tracker)  # fail fast, one line
+    from doabench.envs.registry import get_task_spec
+
+    task = get_task_spec(args.task)  # resolved once, here: the run and its cache take the spec
+    checked = check_trainable(make_tracker(args.tracker, **options), args.tracker)  # fail fast, one line
     if args.dataset and (warning := benchmark_dataset_warning(Path(args.dataset))):
         print(warning, file=sys.stderr, flush=True)
     from doabench.training.trainer import TrainOptions, Trainer
 
     recipe = build_recipe(args)
-    opts = TrainOptions(tracker=args.tracker, out=Path(args.out), recipe=recipe, task=args.task,
+    opts = TrainOptions(tracker=args.tracker, out=Path(args.out), recipe=recipe, task=task,
                         librispeech=args.librispeech, cache_root=Path(args.cache_root), simulator=args.backend,
                         resume=args.resume, threads=args.threads, progress=not args.quiet,
                         max_epochs=args.max_epochs, min_cache=args.min_cache, tracker_options=options,
@@ -199,20 +202,18 @@ def main(args: argparse.Namespace) -> int:
             from doabench.errors import ConfigError
 
             raise ConfigError("--build-cache runs in one process: start it without torchrun")
-        from doabench.envs.registry import get_task_spec
         from doabench.training.pipeline import ensure_cache
         from doabench.training.protocol import training_defaults
 
         recipe = opts.recipe
-        if recipe.t60 is None and "t60" in (d := training_defaults(make_tracker(args.tracker, **options))):
+        if recipe.t60 is None and "t60" in (d := training_defaults(checked)):
             recipe = recipe.replace(t60=tuple(d["t60"]))
-        spec = get_task_spec(args.task)
         set_interrupt_note(args, lambda: f"the trajectories cached so far are kept in {opts.cache_root}; continue "
                                          f"with the same command: {command_line(args)}")
         log = lambda m: print(m, flush=True)  # noqa: E731
-        ensure_cache(opts.cache_root, spec, recipe, "val", recipe.val_trajectories, args.librispeech, args.backend, log)
+        ensure_cache(opts.cache_root, task, recipe, "val", recipe.val_trajectories, args.librispeech, args.backend, log)
         if recipe.data == "cache":
-            ensure_cache(opts.cache_root, spec, recipe, "train", recipe.cache_size, args.librispeech, args.backend, log)
+            ensure_cache(opts.cache_root, task, recipe, "train", recipe.cache_size, args.librispeech, args.backend, log)
         return 0
     from doabench.training.distributed import is_distributed_launch, run_distributed
 

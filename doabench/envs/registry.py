@@ -5,6 +5,12 @@ Built-in specs are the TOML files in the repository's ``tasks/`` folder (install
 (``os.pathsep``-separated) and from :func:`register_task` calls, so a new task needs no edit of
 doabench. Each task is registered with Gymnasium as ``doabench/<id>-v<version>``.
 
+The ids live in one :class:`doabench.plugins.VersionedRegistry` (:data:`TASKS`): the plug-in
+registries' rules (a did-you-mean for an unknown id, a broken definition named when asked for),
+with Gymnasium's version discipline: ``sim-fan`` is the latest version, ``sim-fan-v1`` and
+``doabench/sim-fan-v1`` exactly version 1, and a version that does not exist is a NotFoundError
+naming those that do.
+
 Dynamic task families are named by an id prefix: ``<name>:<rest>`` is resolved by the
 ``doabench.task_prefixes`` entry point ``name`` (``file = "doabench.datasets.replay:resolve_file_task"``
 in pyproject.toml gives dataset replay, ``file:data.h5``) or by a :func:`register_prefix` call. This
@@ -12,7 +18,6 @@ module names no task kind.
 """
 from __future__ import annotations
 
-import difflib
 import os
 import sys
 from importlib import resources
@@ -23,21 +28,20 @@ import gymnasium
 
 from doabench.envs.spec import TaskSpec, load_spec_file, spec_from_dict
 from doabench.errors import ConfigError, NotFoundError
-from doabench.plugins import Registry
+from doabench.plugins import Registry, VersionedRegistry
 
 PREFIX_ENTRY_POINT_GROUP = "doabench.task_prefixes"
 
-_TASKS: dict[str, TaskSpec] = {}  # task id -> its latest version
-#: every registered version of each task id (an older version stays runnable as
-#: ``doabench/<id>-v<N>``, or ``<id>-v<N>``, and results files of it stay readable)
-_VERSIONS: dict[str, dict[int, TaskSpec]] = {}
+#: Every registered version of each task id (an older version stays runnable as
+#: ``doabench/<id>-v<N>``, or ``<id>-v<N>``, and results files of it stay readable). A task id whose
+#: spec file could not be loaded at start-up is withdrawn with the one-line reason: asking for it
+#: raises that reason; every other task and command keeps working.
+TASKS: VersionedRegistry[TaskSpec] = VersionedRegistry("task", lambda spec: spec.version, namespace="doabench/",
+                                                       listing="`doabench list tasks` shows them all")
 _LOADED = False
 #: Dynamic task families by the prefix of their ids (``file`` resolves ``file:data.h5``, dataset replay),
 #: doabench's own declared in its pyproject.toml as a plug-in's (:mod:`doabench.plugins`).
 TASK_PREFIXES: Registry[Callable[[str], TaskSpec]] = Registry("task prefix", PREFIX_ENTRY_POINT_GROUP, declares_own=True)
-# Task ids whose spec file could not be loaded at start-up -> the one-line reason. Asking for one
-# of them raises that reason; every other task and command keeps working.
-_BROKEN: dict[str, str] = {}
 
 
 def _warn(message: str) -> None:
@@ -82,7 +86,8 @@ def _load_file_at_startup(path: Path) -> None:
     except (ConfigError, OSError, UnicodeDecodeError) as exc:
         reason = str(exc) if isinstance(exc, ConfigError) else f"task spec {path} cannot be read ({exc})"
         _warn(f"{reason}; skipped")
-        _BROKEN.setdefault(path.stem, reason)
+        if TASKS.broken(path.stem) is None and not TASKS.versions(path.stem):
+            TASKS.withdraw(path.stem, reason)
         return
     for spec in specs:
         old = _conflicting(spec)
@@ -90,11 +95,9 @@ def _load_file_at_startup(path: Path) -> None:
             reason = (f"task id {spec.id!r} is defined twice, by {old.source_file} (v{old.version}) and by "
                       f"{spec.source_file} (v{spec.version}); rename one (the versions of a task live in one folder)")
             _warn(f"{reason}; {spec.source_file} skipped")
-            _BROKEN[spec.id] = reason
-            _TASKS.pop(spec.id, None)
-            _VERSIONS.pop(spec.id, None)
+            TASKS.withdraw(spec.id, reason)
             continue
-        if spec.id in _BROKEN:
+        if TASKS.broken(spec.id) is not None:
             continue
         register_task(spec)
 
@@ -115,9 +118,7 @@ def register_task(spec: TaskSpec | dict[str, Any] | str | Path) -> list[TaskSpec
         if old is not None:
             raise ConfigError(f"task id {s.id!r} version {s.version} from {s.source_file} is already registered by "
                               f"{old.source_file}")
-        versions = _VERSIONS.setdefault(s.id, {})
-        versions[s.version] = s
-        _TASKS[s.id] = versions[max(versions)]
+        TASKS.register(s.id, s, replace=True)  # _conflicting is the stricter rule: what passed it is one definition
         if s.gym_id not in gymnasium.registry:
             # the env is built from the gym id, so each registered version runs as itself
             gymnasium.register(id=s.gym_id, entry_point="doabench.envs.env:DoaEnv", kwargs={"task": s.gym_id},
@@ -129,7 +130,7 @@ def _conflicting(spec: TaskSpec) -> TaskSpec | None:
     """A registered spec that ``spec`` may not stand beside: another definition of its version, or
     a version of its id from another folder (every version of a task lives in one folder, so a file
     on the task path cannot add a newer version of a built-in task and replace it)."""
-    versions = _VERSIONS.get(spec.id, {})
+    versions = TASKS.versions(spec.id)
     same = versions.get(spec.version)
     if same is not None and same.source_file != spec.source_file and same != spec:
         return same
@@ -143,32 +144,14 @@ def _conflicting(spec: TaskSpec) -> TaskSpec | None:
 def task_versions(task_id: str) -> dict[int, TaskSpec]:
     """Every registered version of ``task_id`` (``{version: spec}``, oldest first; empty when unknown)."""
     _ensure_loaded()
-    return dict(sorted(_VERSIONS.get(task_id, {}).items()))
+    return TASKS.versions(task_id)
 
 
 def task_reference(spec: TaskSpec) -> str:
     """The id that resolves to exactly ``spec``: its plain id when it is the latest registered
     version, else ``<id>-v<version>``."""
-    latest = _TASKS.get(spec.id)
-    return spec.id if latest is None or latest.version == spec.version else f"{spec.id}-v{spec.version}"
-
-
-def _versioned(key: str) -> tuple[str, int] | None:
-    """``sim-pauses-v2`` -> ``("sim-pauses", 2)`` where ``sim-pauses`` is a registered task and the
-    text itself is not; else None."""
-    base, sep, number = key.rpartition("-v")
-    if not sep or not number.isdigit() or key in _TASKS or base not in _VERSIONS:
-        return None
-    return base, int(number)
-
-
-def _version_of(task_id: str, key: str, version: int) -> TaskSpec:
-    spec = _VERSIONS[key].get(version)
-    if spec is None:
-        have = ", ".join(f"v{v}" for v in sorted(_VERSIONS[key]))
-        raise NotFoundError(f"task {key!r} has no version {version} (registered: {have}; "
-                            f"`doabench/{key}-v{max(_VERSIONS[key])}` or `{key}` is the latest)")
-    return spec
+    versions = TASKS.versions(spec.id)
+    return spec.id if not versions or max(versions) == spec.version else f"{spec.id}-v{spec.version}"
 
 
 def register_prefix(prefix: str, resolver: Callable[[str], TaskSpec]) -> None:
@@ -178,32 +161,41 @@ def register_prefix(prefix: str, resolver: Callable[[str], TaskSpec]) -> None:
 
 
 def available_tasks() -> dict[str, TaskSpec]:
+    """Each registered task id's latest version, sorted by id."""
     _ensure_loaded()
-    return dict(sorted(_TASKS.items()))
+    return TASKS.latest()
 
 
 def get_task_spec(task_id: str | TaskSpec) -> TaskSpec:
-    """The spec of a registered task id (``sim-demo``, ``doabench/sim-demo-v0`` or ``file:x.h5``)."""
+    """The spec of a task id (``sim-demo``, ``sim-demo-v2``, ``doabench/sim-demo-v2`` or
+    ``file:x.h5``); a TaskSpec is returned as it is. Resolve an id once, where it is typed, and
+    pass the spec on."""
     if isinstance(task_id, TaskSpec):
         return task_id
+    return resolve_task(task_id)
+
+
+def resolve_task(task_id: str) -> TaskSpec:
+    """Look ``task_id`` up (:func:`get_task_spec`): the registry, or the resolver of its prefix."""
     _ensure_loaded()
     head, colon, _ = task_id.partition(":")
     prefix = TASK_PREFIXES.find(head) if colon else None
     if prefix is not None:
         return prefix[1](task_id)
-    key = task_id
-    if key.startswith("doabench/"):
-        key = key[len("doabench/"):]
-        head, colon, _ = key.partition(":")
-        if colon and TASK_PREFIXES.find(head) is not None:  # a prefixed task's Gymnasium id: doabench/file:x.h5-v0
-            return get_task_spec(key.rsplit("-v", 1)[0])
-    versioned = _versioned(key)
-    if versioned is not None:
-        return _version_of(task_id, *versioned)
-    if key in _TASKS:
-        return _TASKS[key]
-    if key in _BROKEN:
-        raise ConfigError(_BROKEN[key])
-    close = difflib.get_close_matches(key, list(_TASKS), n=3, cutoff=0.6)
-    hint = f"; did you mean {', '.join(close)}?" if close else ""
-    raise NotFoundError(f"unknown task {task_id!r}{hint} (`doabench list tasks` shows them all)")
+    key = task_id.removeprefix(TASKS.namespace)
+    head, colon, _ = key.partition(":")
+    if key != task_id and colon and TASK_PREFIXES.find(head) is not None:  # a prefixed task's Gymnasium id
+        return _prefixed_version(key)
+    return TASKS.get(task_id)
+
+
+def _prefixed_version(key: str) -> TaskSpec:
+    """``file:x.h5-v0`` (from ``doabench/file:x.h5-v0``): the prefixed task, which must be of that version."""
+    base, sep, number = key.rpartition("-v")
+    if not sep or not number.isdigit():
+        return resolve_task(key)
+    spec = resolve_task(base)
+    if spec.version != int(number):
+        raise NotFoundError(f"task {base!r} has no version {int(number)} (it is v{spec.version}: "
+                            f"`{spec.gym_id}` or `{base}`)")
+    return spec

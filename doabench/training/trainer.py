@@ -19,6 +19,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
+from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, InputError
 from doabench.files import exclusive_lock, write_json
 from doabench.training import checkpoint as ckpt
@@ -49,7 +50,7 @@ class TrainOptions:
     tracker: str
     out: Path
     recipe: Recipe
-    task: str = "sim-train"
+    task: str | TaskSpec = "sim-train"  # an id, or the spec resolved where it was typed
     librispeech: str | None = None
     cache_root: Path = DEFAULT_CACHE_ROOT
     simulator: str = "builtin"
