@@ -33,10 +33,11 @@ demo: setup
 test: setup
 	$(BIN)/python -m pytest
 
-# A quick loop while editing: every test but the slow ones (tests/conftest.py, SLOW_TESTS). `make test`
-# stays the README's and CI's command and runs them all.
+# A quick loop while editing: every test but the slow ones (tests/conftest.py, SLOW_TESTS), spread over
+# the machine's cores by pytest-xdist (-n auto: one worker a core). `make test` stays the README's and
+# CI's command and runs them all, in one process.
 test-fast: setup
-	$(BIN)/python -m pytest -m "not slow"
+	$(BIN)/python -m pytest -m "not slow" -n auto
 
 # The explicit command that changes the committed demo results (and the leaderboards built from them).
 # Only from a clean tree: the results record the commit they were made with, which must be the code.
