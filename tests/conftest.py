@@ -120,6 +120,16 @@ SLOW_TESTS = (
     "tests/test_readme_commands.py::test_demo_writes_only_under_an_ignored_folder",
     "tests/test_extending.py",
     "tests/test_weights_names.py::test_the_catalog_is_what_the_rule_gives",
+    # every committed results file and leaderboard, and every grid cell's environment: the quick loop
+    # keeps a fresh run's schema check, the leaderboard tests on small folders, each task's own environment
+    # and the T60 0 cells
+    "tests/test_results_schema.py::test_committed_results_follow_the_schema",
+    "tests/test_leaderboard.py::test_committed_leaderboards_match_committed_results",
+    "tests/test_run.py::test_check_env_passes_for_every_simulated_task[sim-t60-0.",
+    "tests/test_run.py::test_check_env_passes_for_every_simulated_task[sim-t60-1.",
+    "tests/test_run.py::test_check_env_passes_for_every_simulated_task[sim-turn-t60-",
+    "tests/test_run.py::test_check_env_passes_for_every_simulated_task[sim-walk-t60-",
+    "tests/test_simulation_time.py::test_run_and_make_dataset_print_the_estimate_before_they_start",
 )
 
 

@@ -114,7 +114,18 @@ def validate_results(results: Any) -> None:
     from doabench.files import to_json
 
     data = _nan_to_none(json.loads(to_json(results, indent=None)))  # numpy values -> JSON types, as written
-    jsonschema.validate(data, results_schema(), cls=jsonschema.Draft202012Validator)
+    error = jsonschema.exceptions.best_match(_validator().iter_errors(data))
+    if error is not None:
+        raise error
+
+
+@functools.lru_cache(maxsize=1)
+def _validator() -> Any:
+    """The schema's validator, built once: ``jsonschema.validate`` checks the schema itself against
+    the draft's metaschema on every call, which took most of a file's validation time."""
+    import jsonschema
+
+    return jsonschema.Draft202012Validator(results_schema())
 
 
 def results_problem(data: Any, sections: Sequence[str] = LEADERBOARD_SECTIONS) -> str | None:
