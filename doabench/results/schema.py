@@ -122,7 +122,7 @@ def validate_results(results: Any) -> None:
 @functools.lru_cache(maxsize=1)
 def _validator() -> Any:
     """The schema's validator, built once: ``jsonschema.validate`` checks the schema itself against
-    the draft's metaschema on every call, which took most of a file's validation time."""
+    the draft's metaschema on every call (about a fifth of a committed file's validation time)."""
     import jsonschema
 
     return jsonschema.Draft202012Validator(results_schema())
