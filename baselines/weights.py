@@ -3,13 +3,15 @@
 The metadata, stored as JSON under the ``doabench`` key of the safetensors header, records what
 the weights were trained for, and loading checks it against what the caller is about to use::
 
-    {"format": "doabench-weights/1", "model": "cross3d", "resolution": "16x32",
-     "model_config": {"n_theta": 16, "n_phi": 32},
+    {"format": "doabench-weights/2", "model": "cross3d", "model_config": {"resolution": "16x32"},
      "array": {"name": "nao", "positions": [[x, y, z], ...]},
-     "features": {"kinds": ["srp", "srp_max"], "window": 4096, "hop": 3072, "fs": 16000,
-                  "delay_mode": "nearest"},
+     "observations": {...what the network reads: doabench.ObservationSpec.to_dict()...},
      "training": {...free-form recipe summary...}, "parameters": 1693988,
      "doabench_version": "0.1.0", "date": "2026-01-01T00:00:00+00:00"}
+
+Metadata of an older format is read as the current one (``doabench.upgrade_weights_metadata``;
+``doabench migrate FILE`` writes such a file's upgraded copy), so every check below reads the
+stored spec back with ``ObservationSpec.from_dict``.
 
 Shipped weights are the files of ``baselines/weights/`` (:data:`SHIPPED_DIR`); which of them a
 tracker runs, by name or by default, is :mod:`.catalog`'s answer, which builds on this module and
@@ -30,13 +32,13 @@ import numpy as np
 
 import doabench
 from doabench.errors import ConfigError, DoabenchError, InputError, NotFoundError
-from doabench.trackers import parse_resolution, resolution_text
+from doabench.trackers import parse_resolution, resolution_text  # noqa: F401  (the trackers import both from here)
 
 if TYPE_CHECKING:  # torch is imported where tensors are handled: `doabench list trackers` needs none
     import torch
     from torch import nn
 
-FORMAT = "doabench-weights/1"
+FORMAT = "doabench-weights/2"
 METADATA_KEY = "doabench"
 SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
 #: largest microphone displacement (m) between the weights' array and the one in use
@@ -65,27 +67,26 @@ def make_metadata(
     model: nn.Module,
     *,
     array: "doabench.MicArray",
-    frame_spec: "doabench.FrameSpec",
-    features: Sequence[str],
+    observations: Mapping[str, Any] | None = None,
+    frame_spec: "doabench.FrameSpec | None" = None,
+    features: Sequence[str] = (),
     resolution: tuple[int, int] | None = None,
     delay_mode: str | None = "nearest",
     model_config: Mapping[str, Any] | None = None,
     training: Mapping[str, Any] | None = None,
-    observations: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The metadata dict of a weight file (see the module docstring). ``observations``: what the
     network reads, as ``doabench.ObservationSpec.to_dict()`` writes it (the one stored form that
-    results and ONNX files hold too); ``features`` and ``resolution`` repeat part of it for
-    readers older than it."""
+    results and ONNX files hold too); without it, the spec of ``features`` on ``resolution``,
+    ``frame_spec`` and ``delay_mode`` (``ObservationSpec.of``), stored in that form."""
+    if observations is None:
+        observations = doabench.ObservationSpec.of(tuple(features), resolution, frame_spec, delay_mode).to_dict()
     return {
         "format": FORMAT,
         "model": model_name,
-        "resolution": resolution_text(resolution),
         "model_config": dict(model_config or {}),
         "array": {"name": array.name, "positions": np.asarray(array.positions, dtype=float).round(6).tolist()},
-        "features": {"kinds": list(features), "window": frame_spec.window, "hop": frame_spec.hop,
-                     "fs": frame_spec.fs, "delay_mode": delay_mode},
-        **({"observations": dict(observations)} if observations is not None else {}),
+        "observations": dict(observations),
         "training": dict(training or {}),
         "parameters": sum(p.numel() for p in model.parameters()),
         "doabench_version": doabench.__version__,
@@ -102,12 +103,16 @@ def save_weights(path: str | Path, model: nn.Module, metadata: Mapping[str, Any]
     # doabench's output rule: atomic for a file (a crash never leaves a half-written weight file
     # under the real name), written through for a stream, a symbolic link's target kept a link.
     with doabench.atomic_path(path, suffix=".safetensors") as tmp:
-        save_file(tensors, str(tmp), metadata={METADATA_KEY: json.dumps(dict(metadata), sort_keys=True),
-                                               "model": str(metadata.get("model")),
-                                               "resolution": str(metadata.get("resolution"))})
+        save_file(tensors, str(tmp), metadata=header_metadata(metadata))
     if _is_shipped(path):
         update_manifest(path)
     return path
+
+
+def header_metadata(metadata: Mapping[str, Any]) -> dict[str, str]:
+    """The safetensors header entries of a weights file with ``metadata``: the metadata as JSON
+    under :data:`METADATA_KEY`, and the model's name beside it."""
+    return {METADATA_KEY: json.dumps(dict(metadata), sort_keys=True), "model": str(metadata.get("model"))}
 
 
 def _is_shipped(path: str | Path) -> bool:
@@ -227,7 +232,8 @@ def _open(path: str | Path):
 
 
 def read_metadata(path: str | Path) -> dict[str, Any]:
-    """The doabench metadata of a weight file (InputError if it has none)."""
+    """The doabench metadata of a weight file in the current format (an older format read as it,
+    ``doabench.upgrade_weights_metadata``); InputError if it has none or it cannot be read."""
     with _open(path) as f:
         header = f.metadata() or {}
     raw = header.get(METADATA_KEY)
@@ -240,10 +246,10 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
         meta = json.loads(raw)
     except json.JSONDecodeError:
         raise InputError(f"weights file {path}: metadata is not valid JSON") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        found = meta.get("format") if isinstance(meta, dict) else meta
-        raise InputError(f"weights file {path}: unknown metadata format {found!r}")
-    return meta
+    try:
+        return doabench.upgrade_weights_metadata(meta)
+    except InputError as exc:
+        raise InputError(f"weights file {path}: {exc}") from None
 
 
 def check_metadata(
@@ -255,23 +261,41 @@ def check_metadata(
     array: "doabench.MicArray | None" = None,
     frame_spec: "doabench.FrameSpec | None" = None,
     delay_mode: str | None = None,
+    observations: "doabench.ObservationSpec | None" = None,
 ) -> None:
-    """Raise ConfigError naming the first thing the weights were not trained for."""
+    """Raise ConfigError naming the first thing the weights were not trained for. What they read
+    is their stored spec (``ObservationSpec.from_dict`` of ``observations``), compared whole with
+    ``observations`` (a tracker's ``observation_spec``) or in part: its grid with ``resolution``,
+    its frames with ``frame_spec``, its SRP delays with ``delay_mode``."""
     where = f"weights file {Path(path).name}"
     if model_name is not None and meta.get("model") != model_name:
         raise ConfigError(f"{where} holds a {meta.get('model')!r} model, not {model_name!r}")
-    if resolution is not None and meta.get("resolution") != resolution_text(resolution):
-        raise ConfigError(f"{where} was trained on {meta.get('resolution')} maps, not {resolution_text(resolution)}")
     if array is not None:
         check_array(meta, array, where)
-    feats = meta.get("features", {})
-    if frame_spec is not None:
-        want = {"window": frame_spec.window, "hop": frame_spec.hop, "fs": frame_spec.fs}
-        have = {k: feats.get(k) for k in want}
-        if have != want:
-            raise ConfigError(f"{where} was trained with frames {have}, not {want}")
-    if delay_mode is not None and feats.get("delay_mode") not in (None, delay_mode):
-        raise ConfigError(f"{where} was trained with {feats.get('delay_mode')!r} SRP delays, not {delay_mode!r}")
+    if resolution is observations is frame_spec is delay_mode is None:
+        return
+    stored = stored_observations(meta, where)
+    if observations is not None and stored != observations:
+        raise ConfigError(f"{where} was trained on the observations {stored.to_dict()}, not {observations.to_dict()}")
+    if resolution is not None and stored.resolution != tuple(resolution):
+        had = resolution_text(stored.resolution) if stored.resolution else "no"
+        raise ConfigError(f"{where} was trained on {had} maps, not {resolution_text(resolution)}")
+    if frame_spec is not None and stored.frame_spec != frame_spec:
+        raise ConfigError(f"{where} was trained with frames {stored.frame_spec.to_dict()}, not {frame_spec.to_dict()}")
+    if delay_mode is not None and stored.delays not in (None, delay_mode):
+        raise ConfigError(f"{where} was trained with {stored.delays!r} SRP delays, not {delay_mode!r}")
+
+
+def stored_observations(meta: Mapping[str, Any], where: str) -> doabench.ObservationSpec:
+    """The spec a weights file's metadata stores (``ObservationSpec.from_dict``); a one-line
+    InputError naming ``where`` when it holds none it can read."""
+    stored = meta.get("observations")
+    if not isinstance(stored, Mapping):
+        raise InputError(f"{where}: its metadata stores no observations")
+    try:
+        return doabench.ObservationSpec.from_dict(stored)
+    except DoabenchError as exc:
+        raise InputError(f"{where}: its stored observations cannot be read ({exc})") from None
 
 
 def check_array(meta: Mapping[str, Any], array: "doabench.MicArray", where: str) -> None:
@@ -363,13 +387,13 @@ class WeightsFile:
 
     @property
     def frame_spec(self) -> doabench.FrameSpec:
-        feats = self.metadata.get("features", {})
-        return doabench.FrameSpec(feats["window"], feats["hop"], feats["fs"])
+        """The frames the weights were trained on (their observations')."""
+        return self.observations.frame_spec
 
     @property
     def resolution(self) -> tuple[int, int] | None:
-        text = self.metadata.get("resolution")
-        return parse_resolution(text) if text else None
+        """The SRP grid of the observations the weights were trained on."""
+        return self.observations.resolution
 
     @property
     def array(self) -> doabench.MicArray | None:
@@ -379,28 +403,25 @@ class WeightsFile:
 
     @property
     def observations(self) -> doabench.ObservationSpec:
-        """What the network was trained to read: the file's ``observations`` (the stored
-        ``ObservationSpec``), or for a file older than it, the same read from its ``features`` and
-        ``resolution`` (SRP grid 16x32 where the model reads no map)."""
-        stored = self.metadata.get("observations")
-        if stored:
-            return doabench.ObservationSpec.from_dict(stored)
-        feats = self.metadata.get("features") or {}
-        return doabench.ObservationSpec.of(tuple(feats.get("kinds") or ()), self.resolution, self.frame_spec,
-                                           feats.get("delay_mode") or None)
+        """What the network was trained to read: the file's stored ``ObservationSpec``."""
+        return stored_observations(self.metadata, f"weights file {self.path.name}")
 
     @property
     def delay_mode(self) -> str:
-        """The SRP delay mode of the maps the weights were trained on (``nearest`` when unrecorded)."""
-        return self.observations.delays
+        """The SRP delay mode of the maps the weights were trained on (``nearest`` for a network
+        that reads no map)."""
+        return self.observations.delays or "nearest"
 
-    def load_into(self, model: nn.Module, model_name: str) -> None:
-        """Read the tensors (checked: shipped hash, metadata, finite values, keys and shapes) into ``model``."""
-        state, _ = load_weights(self.path, model_name=model_name, frame_spec=self.frame_spec)
+    def load_into(self, model: nn.Module, model_name: str, observations: doabench.ObservationSpec | None = None) -> None:
+        """Read the tensors (checked: shipped hash, metadata, finite values, keys and shapes) into
+        ``model``; with ``observations`` (the tracker's ``observation_spec``), the weights must have
+        been trained on them."""
+        state, _ = load_weights(self.path, model_name=model_name, observations=observations)
         load_into(model, state, self.path)
         self._sha256 = sha256_file(self.path)
 
     def describe(self) -> dict[str, Any]:
-        """What ``describe()`` reports of the weights: the file, the training summary and features."""
+        """What ``describe()`` reports of the weights: the file, the training summary and the
+        observations they were trained on (``trained_features``, their stored spec)."""
         return {"weights": str(self.path), "training": self.metadata.get("training"),
-                "trained_features": self.metadata.get("features")}
+                "trained_features": self.observations.to_dict()}

@@ -90,7 +90,8 @@ def run(tracker, task, **kwargs):
 
 
 def __getattr__(name: str) -> Any:
-    """``TrainableTracker``, ``single_threaded``, ``ObservationPlan``, ``SRPPHAT`` and ``atomic_path`` on first use: ``import
+    """``TrainableTracker``, ``single_threaded``, ``ObservationPlan``, ``SRPPHAT``, ``atomic_path`` and
+    ``upgrade_weights_metadata`` on first use: ``import
     doabench`` stays light (the first two's and SRPPHAT's modules import torch; ObservationPlan's
     imports gymnasium and builds on torch)."""
     if name == "TrainableTracker":
@@ -113,6 +114,11 @@ def __getattr__(name: str) -> Any:
 
         globals()[name] = SRPPHAT
         return SRPPHAT
+    if name == "upgrade_weights_metadata":  # weights files of an older format, read as the current one
+        from doabench.results.upgrade import upgrade_weights_metadata
+
+        globals()[name] = upgrade_weights_metadata
+        return upgrade_weights_metadata
     if name == "atomic_path":  # the output rule (docs/guarantees.md), for plug-ins that write files
         from doabench.files import atomic_path
 
@@ -122,7 +128,8 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan", "SRPPHAT", "atomic_path", "single_threaded"})
+    return sorted(set(globals()) | {"TrainableTracker", "ObservationPlan", "SRPPHAT", "atomic_path", "single_threaded",
+                                    "upgrade_weights_metadata"})
 
 
 available_tasks()  # registers every task with Gymnasium at import time
@@ -132,5 +139,5 @@ __all__ = [
     "ResetContext", "SRPPHAT", "SilenceHold",
     "TaskSpec", "Tracker", "TrainableTracker", "atomic_path", "available_tasks", "available_trackers", "get_array", "get_task_spec",
     "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",
-    "srp_maps", "__version__",
+    "srp_maps", "upgrade_weights_metadata", "__version__",
 ]

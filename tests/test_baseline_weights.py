@@ -52,10 +52,11 @@ def test_round_trip_gives_the_same_directions_and_metadata(cross3d_file):
     d = loaded.describe()
     assert d["trained"] is True and d["weights_hash"] == W.sha256_file(path)
     assert d["parameters"] == 526_372 and d["training"] == {"epochs": 80, "batch": 5}
-    assert d["trained_features"] == {"kinds": ["srp", "srp_max"], "window": 4096, "hop": 3072, "fs": 16000,
-                                     "delay_mode": "nearest"}
+    assert d["trained_features"] == doabench.ObservationSpec.of(("srp", "srp_max"), (4, 8)).to_dict()
     meta = W.read_metadata(path)
-    assert meta["model"] == "cross3d" and meta["resolution"] == "4x8" and meta["array"]["name"] == "nao"
+    assert meta["model"] == "cross3d" and meta["format"] == W.FORMAT == "doabench-weights/2"
+    assert "features" not in meta and "resolution" not in meta and meta["array"]["name"] == "nao"
+    assert doabench.ObservationSpec.from_dict(meta["observations"]).resolution == (4, 8)
     assert meta["doabench_version"] == doabench.__version__ and meta["date"]
     assert meta["torch_version"] == torch.__version__  # caller keys are kept
 

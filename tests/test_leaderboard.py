@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -59,7 +60,8 @@ def _results(tracker: str, rmsae: float, task: str = "sim-grid", episodes_run: i
                     "features": ["srp"], "resolution": spec or "16x32", "parameters": 0,
                     "receptive_field_frames": 1, "weights_hash": None, "options": {}},
         "causal": True,
-        "features": {"kinds": ["srp"], "resolution": spec or "16x32", "delays": "nearest",
+        "features": {"kinds": ["srp"], "resolution": spec if re.fullmatch(r"\d+x\d+", spec) else "16x32",
+                     "delays": "nearest",
                      "frame": {"window": 4096, "hop": 3072, "fs": 16000}},
         "environment": {"doabench": "0.1.0", "git": {"commit": "a" * 40, "dirty": False}, "python": "3.11.7",
                         "torch": "2.13.0+cpu", "numpy": "2.0", "cpu": "Test CPU", "cpu_count": 2, "device": "cpu",

@@ -240,7 +240,8 @@ def test_silence_none_leaves_no_false_track_at_silent_stamps(corpus, tmp_path):
     for silence in ("hold", "none"):
         results, sub = _locata_run(corpus, tmp_path, silence)
         frames = results["frames"][0]
-        window, fs = results["features"]["frame"]["window"], results["features"]["frame"]["fs"]
+        frame_spec = doabench.ObservationSpec.from_dict(results["observations"]).frame_spec
+        window, fs = frame_spec.window, frame_spec.fs
         ends = frame_ends(results["locata"]["recordings"][0]["start_s"], frames["times"], window, fs)
         latest = np.searchsorted(ends, truth.times, side="right") - 1
         # the frames' truth VAD is the corpus VAD where the truth is valid (the maps' VAD there)

@@ -15,6 +15,7 @@ import pytest
 
 from doabench.cli.main import main
 from doabench.reporting import plots
+from doabench.results.upgrade import upgrade_results
 from test_leaderboard import _results
 
 
@@ -106,6 +107,7 @@ def test_labels_carry_tracker_options() -> None:
     assert plots.tracker_label(weights) == "srp-kalman:32x64 (weights=model.safetensors)"
     exact = copy.deepcopy(base)
     exact["features"]["delays"] = "exact"
+    exact = upgrade_results(exact)  # a doabench.results/1 file, read as the current schema
     assert plots.tracker_label(exact) == "srp-kalman:32x64 (delays=exact)"
     # Same label, other weights: the hash tells them apart; otherwise a running number.
     w1, w2 = copy.deepcopy(weights), copy.deepcopy(weights)

@@ -10,6 +10,8 @@ import pytest
 
 from doabench.cli.main import main
 from doabench.errors import InputError
+from doabench.results.schema import load_results
+from doabench.results.upgrade import upgrade_results
 from doabench.results.writer import config_suffix, results_stem, write_results
 
 from conftest import ROOT
@@ -68,7 +70,7 @@ def test_a_different_configuration_under_the_same_name_is_refused(tmp_path: Path
 
 
 def test_python_writer_refuses_another_configuration(tmp_path: Path) -> None:
-    results = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
+    results = load_results(ROOT / "results" / "sim-demo__srp-max_16x32.json")
     json_path, _ = write_results(results, tmp_path)
     assert json_path.name == "sim-demo__srp-max_16x32.json"
     write_results(results, tmp_path)  # same configuration: fine
@@ -83,7 +85,7 @@ def test_committed_results_carry_the_names_their_configuration_gives() -> None:
     from doabench.results.writer import results_path
 
     for path in sorted((ROOT / "results").glob("*.json")):
-        assert results_path(json.loads(path.read_text()), path.parent).name == path.name
+        assert results_path(load_results(path), path.parent).name == path.name
 
 
 # -- task options are part of a run's identity ---------------------------------------------------------
@@ -128,13 +130,16 @@ def test_task_options_name_the_file_only_where_they_differ_from_the_task() -> No
 
 
 def test_a_file_written_before_task_options_were_recorded_reads_them_from_its_source() -> None:
+    """The upgrade from doabench.results/1 reads the task options back from ``task.source``."""
     from doabench.results.writer import results_configuration, results_task_options
 
     data = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
-    assert "options" not in data["task"] and results_task_options(data) == {}
+    assert data["schema"] == "doabench.results/1" and "options" not in data["task"]
+    assert upgrade_results(data)["task"]["options"] == {}
     data["task"]["source"] = {**data["task"]["source"], "simulator": "pyroomacoustics"}
-    assert results_task_options(data) == {"backend": "pyroomacoustics"}
-    assert results_configuration(data)["task_options"] == {"backend": "pyroomacoustics"}
+    upgraded = upgrade_results(data)
+    assert upgraded["task"]["options"] == {"backend": "pyroomacoustics"} == results_task_options(upgraded)
+    assert results_configuration(upgraded)["task_options"] == {"backend": "pyroomacoustics"}
 
 
 def test_compare_refuses_runs_of_other_task_options(tmp_path: Path, capsys) -> None:
@@ -256,7 +261,7 @@ def test_migrate_renames_older_names_with_their_csv_and_is_idempotent(tmp_path: 
     assert (old.parent / new_name).with_suffix(".csv").read_text() == "episode\n"
     capsys.readouterr()
     assert main(["migrate", str(old.parent)]) == 0
-    assert "every results file has its current name" in capsys.readouterr().out
+    assert "and has its current name" in capsys.readouterr().out
 
 
 def test_migrate_refuses_two_files_of_one_configuration_and_foreign_files(tmp_path: Path, capsys) -> None:

@@ -13,6 +13,7 @@ import pytest
 jsonschema = pytest.importorskip("jsonschema", reason="jsonschema is in the test extra")
 
 from doabench.results.schema import results_schema, validate_results  # noqa: E402
+from doabench.results.upgrade import upgrade_results  # noqa: E402
 
 from conftest import QUICK_SCENE, ROOT  # noqa: E402
 
@@ -20,17 +21,18 @@ from conftest import QUICK_SCENE, ROOT  # noqa: E402
 def test_schema_is_shipped_and_valid() -> None:
     from importlib import resources
 
-    assert resources.files("doabench.results").joinpath("schemas", "results-1.schema.json").is_file()
+    assert resources.files("doabench.results").joinpath("schemas", "results-2.schema.json").is_file()
     schema = results_schema()
     jsonschema.Draft202012Validator.check_schema(schema)
-    assert schema["properties"]["schema"] == {"const": "doabench.results/1"}
+    assert schema["properties"]["schema"] == {"const": "doabench.results/2"}
     pyproject = (ROOT / "pyproject.toml").read_text()
     assert '"doabench.results" = ["schemas/*.json"]' in pyproject  # in the wheel too
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "results").glob("*.json")), ids=lambda p: p.name)
 def test_committed_results_follow_the_schema(path: Path) -> None:
-    validate_results(json.loads(path.read_text()))
+    """Committed files of an older schema follow the current one once upgraded."""
+    validate_results(upgrade_results(json.loads(path.read_text())))
 
 
 def test_a_fresh_run_follows_the_schema_and_breakage_is_caught(tmp_path: Path) -> None:
@@ -43,7 +45,7 @@ def test_a_fresh_run_follows_the_schema_and_breakage_is_caught(tmp_path: Path) -
     json_path, _ = write_results(results, tmp_path)  # validated by conftest on the way
     validate_results(json.loads(json_path.read_text()))
     for breakage in (lambda r: r.pop("summary"), lambda r: r["task"].update(version=1.5),
-                     lambda r: r["features"].update(delays="sideways"), lambda r: r["episodes"][0].pop("n_frames")):
+                     lambda r: r.pop("observations"), lambda r: r.update(trained_delays="sideways"), lambda r: r["episodes"][0].pop("n_frames")):
         bad = copy.deepcopy(results)
         breakage(bad)
         with pytest.raises(jsonschema.ValidationError):
@@ -57,7 +59,7 @@ def test_every_field_of_the_schema_is_documented() -> None:
     schema = results_schema()
     for key in schema["properties"]:
         assert f"`{key}`" in page, key
-    for section in ("task", "tracker", "features", "environment", "summary", "scoring"):
+    for section in ("task", "tracker", "environment", "summary", "scoring"):
         for key in schema["properties"][section].get("properties", {}):
             assert f"`{section}.{key}`" in page, f"{section}.{key}"
 
@@ -65,7 +67,7 @@ def test_every_field_of_the_schema_is_documented() -> None:
 def test_the_best_constant_directions_error_is_optional_and_typed() -> None:
     """Episode rows carry ``lag_const_sse`` (the lag's evidence that the estimates follow the
     talker) since it was recorded; rows written before it still validate, a wrong type does not."""
-    old = json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text())
+    old = upgrade_results(json.loads((ROOT / "results" / "sim-demo__srp-max_16x32.json").read_text()))
     assert all("lag_const_sse" not in row for row in old["episodes"])
     validate_results(old)
     new = copy.deepcopy(old)

@@ -203,11 +203,13 @@ def test_run_uses_the_default_says_which_and_records_the_name(tmp_path: Path, ca
 
 def test_views_print_the_name_of_committed_results_made_before_names_existed() -> None:
     from doabench.results.labels import run_label
+    from doabench.results.schema import load_results
     from doabench.reporting.leaderboard import reproduce_command
 
-    paper = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32__paper.json").read_text())
-    moving = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32__moving.json").read_text())
-    assert "weights_name" not in paper["tracker"]
+    raw = json.loads((ROOT / "results" / "sim-grid__cross3d_16x32__paper.json").read_text())
+    assert "weights_name" not in raw["tracker"]  # read through the upgrade of its older schema
+    paper = load_results(ROOT / "results" / "sim-grid__cross3d_16x32__paper.json")
+    moving = load_results(ROOT / "results" / "sim-grid__cross3d_16x32__moving.json")
     assert run_label(paper) == "cross3d:16x32 (weights=paper)"
     assert run_label(moving) == "cross3d:16x32 (weights=moving)"
     # reproducible by name, whatever the default is now
@@ -217,9 +219,9 @@ def test_views_print_the_name_of_committed_results_made_before_names_existed() -
 
 def test_results_written_before_names_existed_are_named_by_the_catalog() -> None:
     """Reading a results file builds no tracker: a file written before results recorded
-    ``tracker.weights_name`` is named from a table of the weights that shipped then, which is what
-    the catalog calls them."""
-    from doabench.results.identity import NAMES_BEFORE_RECORDING
+    ``tracker.weights_name`` is named, by the upgrade of its schema, from a table of the weights
+    that shipped then, which is what the catalog calls them."""
+    from doabench.results.upgrade import NAMES_BEFORE_RECORDING
 
     catalog = {(e.tracker, e.sha256): e.name for e in C.all_named()}
     assert NAMES_BEFORE_RECORDING and all(catalog.get(key) == name for key, name in NAMES_BEFORE_RECORDING.items())

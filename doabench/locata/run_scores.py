@@ -19,6 +19,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from doabench.errors import ConfigError, DoabenchError
+from doabench.features.spec import ObservationSpec
 from doabench.locata.layout import Recording
 from doabench.locata.measures import MODES, recording_measures, task_averages
 from doabench.locata.report import finite_or_null
@@ -70,7 +71,8 @@ def submission_from_results(results: Mapping[str, Any], folder: Path) -> dict[Pa
     scored = {(r["recording"]): r for r in (results.get("locata") or {}).get("recordings", [])}
     if frames is None or any(f is None for f in frames):
         raise ConfigError("--locata-submission needs the per-frame estimates: run without --no-frames")
-    window, fs = int(results["features"]["frame"]["window"]), int(results["features"]["frame"]["fs"])
+    frame_spec = ObservationSpec.from_dict(results["observations"]).frame_spec
+    window, fs = frame_spec.window, frame_spec.fs
     out: dict[Path, str] = {}
     for row, frame in zip(rows, frames):
         number = int(row["recording"])

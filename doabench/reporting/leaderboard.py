@@ -24,7 +24,9 @@ from doabench.reporting.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, coverage, display_path,
                                       episode_count, load_references, load_runs, partial_coverage, recording_mean)
 from doabench.files import file_stem
-from doabench.results.identity import canonical_id, results_task_options, results_weights_name
+from doabench.geometry import resolution_text
+from doabench.results.identity import (canonical_id, results_delays, results_kinds, results_observations,
+                                       results_task_options, results_weights_name)
 from doabench.results.intervals import NO_INTERVAL, NO_INTERVAL_NOTE, shown_interval
 from doabench.results.labels import csv_cell
 from doabench.trackers.registry import TRACKERS
@@ -119,9 +121,9 @@ def reproduce_command(results: dict[str, Any]) -> str:
     if task.get("episodes_run") is not None and task.get("episodes_run") != task.get("episodes_total") and (
             selection.get("rule") != "cells"):
         parts.append(f"--episodes {selection.get('episodes') or task['episodes_run']}")
-    features = results.get("features") or {}
-    if features.get("delays") not in (None, "nearest"):
-        parts.append(f"--delays {features['delays']}")
+    delays = results_delays(results)
+    if delays != "nearest":
+        parts.append(f"--delays {delays}")
     parts += kind_reproduce_flags(task)
     device = (results.get("environment") or {}).get("device")
     if device not in (None, "cpu"):
@@ -229,10 +231,16 @@ def _per_recording(run: RunFile) -> dict[str, float]:
             if row.get("recording") is not None}
 
 
+def _resolution_text(results: dict[str, Any]) -> str:
+    """The SRP grid of a run's observations (``16x32``), empty where they have none."""
+    if not isinstance(results.get("observations"), dict):
+        return ""
+    grid = results_observations(results).resolution
+    return resolution_text(grid) if grid else ""
+
+
 def _input_text(results: dict[str, Any]) -> str:
-    features = results.get("features") or {}
-    kinds = list(features.get("kinds") or [])
-    res = features.get("resolution")
+    kinds, res = results_kinds(results), _resolution_text(results)
     text = ", ".join(kinds)
     if "srp" in kinds and res:
         text = text.replace("srp", f"srp {res}", 1)
@@ -572,8 +580,8 @@ def task_csv(board: TaskBoard) -> str:
             "task": task["id"], "task_version": task.get("version"),
             "tracker": run.tracker_id, "tracker_name": tr.get("name"), "tracker_version": tr.get("version"),
             "causal": str(bool(r.get("causal"))).lower(), "parameters": tr.get("parameters"),
-            "features": " ".join((r.get("features") or {}).get("kinds") or []),
-            "resolution": (r.get("features") or {}).get("resolution") or "",
+            "features": " ".join(results_kinds(r)),
+            "resolution": _resolution_text(r),
             "episodes_run": task.get("episodes_run"), "episodes_total": task.get("episodes_total"),
             "rmsae_all": _csv_num(s.get("rmsae_all")), "rmsae_all_ci95_low": _csv_num(all_ci[0]),
             "rmsae_all_ci95_high": _csv_num(all_ci[1]), "rmsae_nonsilent": _csv_num(s.get("rmsae_nonsilent")),

@@ -24,6 +24,7 @@ from typing import Any, Sequence, TypedDict
 import numpy as np
 
 from doabench.errors import InputError
+from doabench.results.identity import results_delays
 from doabench.results.labels import run_label
 
 METRICS = ("rmsae_all", "rmsae_nonsilent")
@@ -72,8 +73,8 @@ def save_figure(fig, out: str | Path, dpi: int = FIGURE_DPI) -> list[Path]:
 def tracker_label(results: dict[str, Any]) -> str:
     """The tracker as a reader tells runs apart: its id and, when set, its options and delay mode
     (``srp-kalman:32x64 (alpha=0.5)``), so two configurations of one tracker never read the same."""
-    delays = (results.get("features") or {}).get("delays")
-    return run_label(results, [f"delays={delays}"] if delays not in (None, "nearest") else [])
+    delays = results_delays(results)
+    return run_label(results, [f"delays={delays}"] if delays != "nearest" else [])
 
 
 def _configuration_key(results: dict[str, Any]) -> str:

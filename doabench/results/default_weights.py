@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
-from doabench.results.identity import canonical_id
+from doabench.results.identity import canonical_id, results_delays
 
 #: the tasks whose mean pooled RMSAE (all frames) ranks the eligible weights
 RULE_TASKS = ("sim-grid", "sim-walk", "sim-turn")
@@ -48,7 +48,7 @@ def counted_runs(runs: Iterable[Mapping[str, Any]], tracker: str, weights_hash: 
             continue
         if task.get("episodes_run") != task.get("episodes_total") or task.get("options"):
             continue
-        if set(trk.get("options") or {}) - {"weights"} or (r.get("features") or {}).get("delays") not in (None, "nearest"):
+        if set(trk.get("options") or {}) - {"weights"} or results_delays(r) != "nearest":
             continue
         out[str(task.get("id"))] = r
     return out

@@ -4,11 +4,10 @@ task and ranked (the headline: mean of per-recording RMSAEs for LOCATA, else the
 
 Complete runs (every episode of the task) are ranked; partial runs (``--episodes N``,
 ``--cells``) are ranked apart, among themselves, with their coverage (``36 of 360 episodes``), so
-a partial run never moves a complete run's rank. One model is one row per results folder: a
-tracker named by an alias (``cross3d`` for ``cross3d:16x32``, results files written before ids
-were canonical) is shown under its canonical id, and of several files of one configuration (task
-version, tracker, options, weights, delays) in one folder only the most complete, then newest, is
-shown; the others are listed as superseded.
+a partial run never moves a complete run's rank. One model is one row per results folder: of
+several files of one configuration (task version, canonical tracker id, options, weights, delays)
+in one folder only the most complete, then newest, is shown; the others are listed as superseded.
+A file of an older schema is read as the current one (:mod:`doabench.results.upgrade`).
 
 Several results folders are read together. One configuration with files in two of them is shown
 once per folder, each row labelled by its folder and its episode count (``RunFile.folder``,
@@ -28,12 +27,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
-from doabench.errors import InputError
+from doabench.errors import ConfigError, InputError
 from doabench.results.labels import inert_text, inert_texts, run_label
-from doabench.results.schema import JsonBoundsError, read_json, results_problem, summary_problem
+from doabench.results.identity import results_delays
+from doabench.results.schema import JsonBoundsError, read_results, results_problem, summary_problem
+from doabench.results.upgrade import UpgradeError
 
-SCHEMA_PREFIX = "doabench.results/"
-SUPPORTED_SCHEMAS = ("doabench.results/1",)
 #: the metric rows are ranked by: the paper's tracking metric (Fig. 8, Table II: silent frames included)
 RANK_METRIC = "rmsae_all"
 
@@ -130,8 +129,7 @@ def configuration_key(run: RunFile) -> tuple:
     """What makes two files one row: task version, canonical tracker id with options and task
     options (its label), weights, delays."""
     r = run.results
-    return (r["task"].get("version"), run.tracker_id, r["tracker"].get("weights_hash"),
-            (r.get("features") or {}).get("delays") or "nearest")
+    return (r["task"].get("version"), run.tracker_id, r["tracker"].get("weights_hash"), results_delays(r))
 
 
 def _preference(run: RunFile) -> tuple:
@@ -180,7 +178,10 @@ def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
         if path.name.startswith("."):  # doabench's own temporary files
             continue
         try:
-            data, results = read_json(path)
+            data, results = read_results(path)
+        except UpgradeError as exc:  # an older file whose content cannot be read as the current schema
+            warn(f"skipped {display_path(path)}: {exc}")
+            continue
         except JsonBoundsError as exc:  # a FIFO, a huge or a deeply nested file: no results file, never parsed
             warn(f"skipped {display_path(path)}: {exc.reason}")
             continue
@@ -188,7 +189,7 @@ def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
             raise InputError(f"{path} cannot be read ({exc.strerror or exc})") from None
         except InputError as exc:
             raise InputError(f"{exc}; fix or remove it") from None
-        problem = results_problem(results) or summary_problem(results)
+        problem = results_problem(results) or summary_problem(results) or _observations_problem(results)
         if problem:
             warn(f"skipped {display_path(path)}: {problem}")
             continue
@@ -196,6 +197,15 @@ def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
         runs.append(RunFile(inert_text(display_path(path)), hashlib.sha256(data).hexdigest(), inert_texts(results),
                             folder=shown_folder))
     return runs
+
+
+def _observations_problem(results: dict[str, Any]) -> str | None:
+    """Why a file's ``observations`` cannot be read back (a kind not known here), or None."""
+    try:
+        results_delays(results)
+    except ConfigError as exc:
+        return f"observations: {exc}"
+    return None
 
 
 def load_references(path: str | Path) -> list[ReferenceRow]:

@@ -1,4 +1,4 @@
-"""The JSON Schema of results files (``doabench.results/1``), shipped with the package.
+"""The JSON Schema of results files (``doabench.results/2``), shipped with the package.
 
 ``results_schema()`` is the schema as a dict; ``validate_results(results)`` checks a results
 dictionary (or a loaded file) against it with ``jsonschema`` (a test dependency; install it with
@@ -6,7 +6,9 @@ dictionary (or a loaded file) against it with ``jsonschema`` (a test dependency;
 ``jsonschema``, why a loaded JSON file is not a results file the leaderboards can read (the same
 answer whatever is installed). ``load_results(path)`` reads a results file, or says in one line
 why it cannot; every results reader goes through ``read_json(path)``, which reads only regular
-files of at most :data:`MAX_JSON_BYTES` nested at most :data:`MAX_JSON_DEPTH` deep.
+files of at most :data:`MAX_JSON_BYTES` nested at most :data:`MAX_JSON_DEPTH` deep;
+``read_results(path)`` is that, with a file of an older schema read through
+:func:`doabench.results.upgrade.upgrade_results`.
 docs/results-format.md documents the fields.
 """
 from __future__ import annotations
@@ -23,8 +25,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from doabench.errors import InputError
+from doabench.results.upgrade import upgrade_results
 
-SCHEMA_FILE = "results-1.schema.json"
+SCHEMA_FILE = "results-2.schema.json"
 #: the sections the leaderboards read, checked by :func:`results_problem`
 LEADERBOARD_SECTIONS = ("task", "tracker", "summary", "environment")
 _JSON_TYPES: dict[str, tuple[type, ...]] = {"string": (str,), "integer": (int,), "number": (int, float),
@@ -86,13 +89,21 @@ def read_json(path: str | Path) -> tuple[bytes, Any]:
         raise InputError(f"{path} is not valid JSON ({exc})") from None
 
 
+def read_results(path: str | Path) -> tuple[bytes, Any]:
+    """``(bytes, parsed)`` as :func:`read_json`, a results file of an older schema read as the
+    current one (:func:`doabench.results.upgrade.upgrade_results`; an UpgradeError, an InputError,
+    for one whose content cannot be); other JSON as it is."""
+    data, parsed = read_json(path)
+    return data, upgrade_results(parsed)
+
+
 @functools.lru_cache(maxsize=1)
 def _schema_text() -> str:
     return resources.files("doabench.results").joinpath("schemas").joinpath(SCHEMA_FILE).read_text()
 
 
 def results_schema() -> dict[str, Any]:
-    """The JSON Schema (draft 2020-12) of a ``doabench.results/1`` file."""
+    """The JSON Schema (draft 2020-12) of a ``doabench.results/2`` file."""
     return json.loads(_schema_text())
 
 
@@ -142,7 +153,7 @@ def results_problem(data: Any, sections: Sequence[str] = LEADERBOARD_SECTIONS) -
     if not (isinstance(found, str) and found.startswith(wanted.rsplit("/", 1)[0] + "/")):
         return f'"schema" is {json.dumps(found)}: not a doabench results file'
     if found != wanted:
-        return f"results schema {found!r}; this doabench reads {wanted!r}"
+        return f"results schema {found!r}; this doabench reads {wanted!r} and the schemas before it"
     for section in sections:
         problem = _section_problem(section, data.get(section), properties[section])
         if problem:
@@ -220,7 +231,9 @@ def _is_type(value: Any, name: str) -> bool:
 
 
 def load_results(path: str | Path) -> dict[str, Any]:
-    """A results JSON written by ``doabench run``; a one-line InputError naming the reason otherwise."""
+    """A results JSON written by ``doabench run``, in the current schema (a file of an older one read
+    through :func:`doabench.results.upgrade.upgrade_results`); a one-line InputError naming the
+    reason otherwise."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path} is a folder; give results JSON files")
@@ -232,5 +245,8 @@ def load_results(path: str | Path) -> dict[str, Any]:
         raise InputError(f"results file {path} cannot be read ({exc.strerror or exc})") from None
     if not (isinstance(data, dict) and str(data.get("schema", "")).startswith("doabench.results/")):
         raise InputError(f"{path} is not a doabench results file (no doabench.results schema)")
-    return data
+    try:
+        return upgrade_results(data)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
 

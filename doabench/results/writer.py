@@ -11,10 +11,10 @@ import pandas as pd
 
 from doabench.errors import InputError
 from doabench.files import atomic_path, file_stem, write_json
-from doabench.results.identity import canonical_id, results_task_options, results_weights_name
+from doabench.results.identity import results_delays, results_task_options, results_weights_name
 from doabench.results.intervals import NO_INTERVAL_NOTE, interval_text, shown_interval
 from doabench.results.labels import run_label
-from doabench.results.schema import read_json
+from doabench.results.schema import read_results
 
 
 def _name_options(options: Mapping[str, Any] | None, weights_hash: str | None) -> dict[str, Any]:
@@ -78,7 +78,7 @@ def results_configuration(results: Mapping[str, Any]) -> dict[str, Any]:
     # str(): configuration() makes text of them anyway, a missing id included
     return configuration(str(task.get("id")), task.get("version"), str(tracker.get("id") or tracker.get("name")),
                          tracker.get("options"), tracker.get("weights_hash"),
-                         (results.get("features") or {}).get("delays"), results_task_options(results))
+                         results_delays(results), results_task_options(results))
 
 
 def results_path(results: Mapping[str, Any], out_dir: str | Path) -> Path:
@@ -118,7 +118,7 @@ def check_overwrite(path: str | Path, config: Mapping[str, Any], overwrite: bool
     if overwrite or not path.exists():
         return
     try:
-        _, data = read_json(path)
+        _, data = read_results(path)
         old = results_configuration(data)
         task = data.get("task") or {}
         old_complete = bool(task.get("complete", task.get("episodes_run") == task.get("episodes_total")))
@@ -166,20 +166,20 @@ def write_results(results: dict[str, Any], out_dir: str | Path, overwrite: bool 
 
 def alias_files(results: Mapping[str, Any], out_dir: str | Path) -> list[Path]:
     """Results JSON files in ``out_dir`` other than :func:`results_path` that hold the same
-    configuration under an alias of its tracker id (``sim-demo__srp-max.json`` written before ids
-    were canonical, now ``sim-demo__srp-max_16x32.json``): one model, one file. Only files whose
-    name starts with the task and the tracker's registered name are read."""
+    configuration under another name (``sim-demo__srp-max.json``, named by an alias of its tracker
+    id, now ``sim-demo__srp-max_16x32.json``): one model, one file. Only files whose name starts
+    with the task and the tracker's registered name are read, an older schema as the current one."""
     target = results_path(results, out_dir)
     tracker = results.get("tracker") or {}
     prefix = f"{file_stem(results['task']['id'])}__{file_stem(tracker.get('name') or tracker.get('id'))}"
-    want = {**results_configuration(results), "tracker": canonical_id(dict(results))}
+    want = results_configuration(results)
     found = []
     for path in sorted(Path(out_dir).glob(f"{prefix}*.json")):
         if path.name == target.name:
             continue
         try:
-            _, old = read_json(path)
-            config = {**results_configuration(old), "tracker": canonical_id(old)}
+            _, old = read_results(path)
+            config = results_configuration(old)
         except (OSError, InputError, ValueError, AttributeError, TypeError, KeyError):
             continue
         if config == want:
@@ -231,7 +231,7 @@ def coverage_lines(results: Mapping[str, Any], written: str | Path | None = None
     if not path.is_file() or (written is not None and Path(written).resolve() == path.resolve()):
         return lines
     try:
-        _, data = read_json(path)
+        _, data = read_results(path)
         other = data.get("task") or {}
         same = results_configuration(data) == results_configuration(results) and bool(other.get("complete"))
         summary = data["summary"]

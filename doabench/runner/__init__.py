@@ -7,7 +7,7 @@
 * :mod:`doabench.runner.recordings`: the same tracker calls on a user's recording
   (``doabench track``), in memory or chunk by chunk;
 * :mod:`doabench.runner.journal`: the resume journal (``.partial.jsonl``) and the run lock;
-* :mod:`doabench.runner.summary`: the results dictionary (schema ``doabench.results/1``).
+* :mod:`doabench.runner.summary`: the results dictionary (schema ``doabench.results/2``).
 """
 from doabench.runner.journal import run_lock
 from doabench.runner.loop import check_direction, check_directions, check_trained, guarded, step_frame, track_frames

@@ -210,7 +210,7 @@ def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
     results = build_results(task, tracker, spec.tracker, dict(spec.options), env, records, wall_s, provenance,
                             spec.delays, selection)
     if spec.trained_delays is not None:
-        results["features"]["trained_delays"] = spec.trained_delays
+        results["trained_delays"] = spec.trained_delays
     if spec.given_id is not None:
         results["tracker"]["given_id"] = spec.given_id
     results["task"]["options"] = identity

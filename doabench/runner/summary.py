@@ -1,6 +1,6 @@
-"""The results dictionary of a run (schema ``doabench.results/1``; docs/results-format.md): the
+"""The results dictionary of a run (schema ``doabench.results/2``; docs/results-format.md): the
 scored frames and per-episode row of each episode, the pooled summary with its headline, the
-scoring notes, the grid cells, provenance and timings.
+scoring notes, the grid cells, the observations the tracker read, provenance and timings.
 
 Frames where the tracker said "no source" (``doabench.NO_SOURCE``) are scored at the fixed error of
 :mod:`doabench.metrics`; where a run has any, its rows count them (``no_estimate``,
@@ -12,16 +12,15 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from doabench.geometry import NO_SOURCE_ERROR_DEG, is_no_source, resolution_text
+from doabench.geometry import NO_SOURCE_ERROR_DEG, is_no_source
 from doabench.envs.env import DoaEnv
 from doabench.envs.registry import get_task_spec
 from doabench.envs.spec import TaskSpec
 from doabench.envs.selection import cells_covered
 from doabench.metrics import (ScoredFrames, aggregate, bootstrap_ci, lag_from_curves, pooled_from_rows,
                               pooled_speed_bands, score_episode, score_frames)
+from doabench.results.upgrade import RESULTS_SCHEMA
 from doabench.trackers.base import Tracker
-
-RESULTS_SCHEMA = "doabench.results/1"
 
 
 def score(ep: dict[str, Any]) -> ScoredFrames:
@@ -136,8 +135,7 @@ def build_results(spec: TaskSpec, tracker: Tracker, tracker_text: str, tracker_o
         "tracker": {"id": tracker_text, **tracker.describe(), "options": tracker_options or {},
                     **({"untrained": True} if getattr(tracker, "trained", True) is False else {})},
         "causal": bool(tracker.causal),
-        "features": {"kinds": list(env.features), "resolution": resolution_text(env.resolution), "delays": delays,
-                     "frame": env.frame_spec.to_dict()},
+        "observations": env.observations.with_delays(delays).to_dict(),
         "environment": provenance,
         "summary": summary,
         "scoring": scoring,
