@@ -323,6 +323,7 @@ def test_a_run_of_one_or_two_episodes_has_no_interval_of_its_own(tmp_path: Path,
     jsonschema = pytest.importorskip("jsonschema")
     from conftest import TINY_SCENE
     from doabench.results.schema import summary_problem, validate_results
+    from doabench.results.upgrade import upgrade_results
     from doabench.results.writer import format_summary
     from doabench.runner import run_task
 
@@ -339,12 +340,13 @@ def test_a_run_of_one_or_two_episodes_has_no_interval_of_its_own(tmp_path: Path,
     folder.mkdir()
     (folder / "new.json").write_text(json.dumps(results, default=float))
     before = copy.deepcopy(results)  # as an older doabench wrote it: an interval of no width
+    before["schema"] = "doabench.results/1"
     before["tracker"]["options"] = {"written": "before"}
     value = summary["rmsae_all"]
     before["summary"]["rmsae_all_ci95"] = [value, value]
     before["summary"]["rmsae_nonsilent_ci95"] = [summary["rmsae_nonsilent"]] * 2
     (folder / "before.json").write_text(json.dumps(before, default=float))
-    assert "95% CI n/a" in format_summary(before)
+    assert "95% CI n/a" in format_summary(upgrade_results(before))
     files = build_leaderboards(folder)
     page, table = files["sim-demo.md"], files["sim-demo.csv"]
     assert page.count(f"| {value:.2f} [n/a] | {summary['rmsae_nonsilent']:.2f} [n/a] |") == 2  # both files

@@ -86,6 +86,21 @@ def test_task_options_are_read_back_from_the_source() -> None:
     assert upgrade_results(old)["task"]["options"] == {"backend": "pyroomacoustics"}
 
 
+def test_an_interval_of_no_width_written_before_the_rule_becomes_none() -> None:
+    """Files written before ``defined_interval`` held an interval of no width where the episodes
+    back none; the upgrade drops it (null, printed n/a), a backed interval is kept."""
+    from doabench.results.intervals import shown_interval
+
+    old = _v1()
+    assert len(old["episodes"]) >= 3 and len({row["rmsae_all"] for row in old["episodes"]}) > 1
+    value = old["summary"]["rmsae_all"]
+    old["summary"]["rmsae_all_ci95"] = [value, value]  # no width, yet the episodes differ
+    new = upgrade_results(old)
+    assert new["summary"]["rmsae_all_ci95"] is None and shown_interval(new, "rmsae_all") is None
+    kept = old["summary"]["rmsae_nonsilent_ci95"]
+    assert new["summary"]["rmsae_nonsilent_ci95"] == kept and shown_interval(new, "rmsae_nonsilent") == tuple(kept)
+
+
 def test_an_unreadable_features_block_is_one_line_and_the_leaderboard_skips_the_file(tmp_path: Path) -> None:
     old = _v1()
     old["features"]["kinds"] = ["no-such-kind"]

@@ -86,8 +86,8 @@ def defined_interval(episode_rms: Sequence[float] | np.ndarray, episode_frames: 
     same keep their interval of no width: there is no spread to show.
 
     The one rule for a single run's interval: :func:`bootstrap_ci_from_sums` applies it when a
-    results file is written, the views (:func:`doabench.results.intervals.shown_interval`) when
-    they print one, so a file written before the rule reads the same as one written since."""
+    results file is written, the upgrade of a file written before the rule
+    (:func:`doabench.results.intervals.drop_undefined_intervals`) when it is read, so both read alike."""
     if interval is None:
         return None
     try:

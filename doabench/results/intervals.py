@@ -3,13 +3,14 @@
 A results file's interval is a bootstrap over its own episodes. With fewer than
 :data:`doabench.metrics.MIN_INTERVAL_EPISODES` episodes that have scored frames, or with every
 resample giving the same value although the episodes differ, that bootstrap says nothing about the
-spread, and the file holds ``null`` (:func:`doabench.metrics.bootstrap_ci_from_sums`). Files
-written before that rule hold an interval of no or next to no width there; :func:`shown_interval`
-reads them by the same rule (:func:`doabench.metrics.defined_interval`), so every view (the
-leaderboards, ``doabench run``'s summary) prints no interval for them either.
+spread, and the file holds ``null`` (:func:`doabench.metrics.bootstrap_ci_from_sums`), which every
+view (the leaderboards, ``doabench run``'s summary) prints as :data:`NO_INTERVAL`. Files of the
+first results schema were written before that rule; their upgrade applies it
+(:func:`drop_undefined_intervals`, :mod:`doabench.results.upgrade`).
 """
 from __future__ import annotations
 
+import math
 from typing import Any, Mapping
 
 from doabench.metrics import MIN_INTERVAL_EPISODES, defined_interval
@@ -26,18 +27,38 @@ NO_INTERVAL_NOTE = (f"fewer than {MIN_INTERVAL_EPISODES} episodes with scored fr
 def shown_interval(results: Mapping[str, Any], metric: str, cell: str | None = None) -> tuple[float, float] | None:
     """The 95 % interval of ``metric`` (``rmsae_all`` or ``rmsae_nonsilent``) of a results file,
     of its summary or of grid cell ``cell`` (a cell id of ``results["cells"]``), as ``(low, high)``;
-    None where the file holds none or its episodes do not back one
-    (:func:`doabench.metrics.defined_interval`). The episodes of a cell are the rows whose ``task``
-    is the cell's id; a file whose rows do not say so is judged by the cell's ``n_episodes``."""
-    if cell is None:
-        part = results.get("summary")
-        rows = [row for row in results.get("episodes") or [] if isinstance(row, Mapping)]
-    else:
-        part = (results.get("cells") or {}).get(cell)
-        rows = [row for row in results.get("episodes") or [] if isinstance(row, Mapping) and row.get("task") == cell]
-    if not isinstance(part, Mapping):
+    None where the file holds none (or not two finite numbers)."""
+    part = results.get("summary") if cell is None else (results.get("cells") or {}).get(cell)
+    stored = part.get(f"{metric}_ci95") if isinstance(part, Mapping) else None
+    try:
+        low, high = (float(v) for v in stored)
+    except (TypeError, ValueError):
         return None
-    stored = part.get(f"{metric}_ci95")
+    return (low, high) if math.isfinite(low) and math.isfinite(high) else None
+
+
+def drop_undefined_intervals(results: dict[str, Any]) -> None:
+    """Set every interval of the summary and cells of ``results`` (changed in place) that its
+    episodes do not back to None (:func:`doabench.metrics.defined_interval`: the rule a file is
+    written by). The episodes of a cell are the rows whose ``task`` is the cell's id; a file whose
+    rows do not say so is judged by the cell's ``n_episodes``."""
+    rows = [row for row in results.get("episodes") or [] if isinstance(row, Mapping)]
+    parts: list[tuple[str | None, Any]] = [(None, results.get("summary"))]
+    cells = results.get("cells")
+    parts += list(cells.items()) if isinstance(cells, Mapping) else []
+    for cell, part in parts:
+        if not isinstance(part, dict):
+            continue
+        own = rows if cell is None else [row for row in rows if row.get("task") == cell]
+        for metric in FRAME_COUNTS:
+            key = f"{metric}_ci95"
+            if part.get(key) is not None and _backed(part, own, metric, cell) is None:
+                part[key] = None
+
+
+def _backed(part: Mapping[str, Any], rows: list[Mapping[str, Any]], metric: str,
+            cell: str | None) -> tuple[float, float] | None:
+    """The stored interval of ``metric`` where the episodes ``rows`` back it, else None."""
     episodes = _episode_values(rows, metric) if rows or cell is None else None
     if episodes is None:
         # rows that cannot be read: the episode count alone decides (as if each had frames and differed)
@@ -46,7 +67,7 @@ def shown_interval(results: Mapping[str, Any], metric: str, cell: str | None = N
         except (TypeError, ValueError):
             return None
         episodes = [float(i) for i in range(count)], [1.0] * count
-    return defined_interval(*episodes, stored)
+    return defined_interval(*episodes, part.get(f"{metric}_ci95"))
 
 
 def _episode_values(rows: list[Mapping[str, Any]], metric: str) -> tuple[list[float], list[float]] | None:

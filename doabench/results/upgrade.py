@@ -23,7 +23,10 @@ stored observation spec of an older file becomes the current one through
 * ``tracker.weights_name``: where absent, the name :data:`NAMES_BEFORE_RECORDING` gives the
   weights' SHA-256 (files of shipped weights written before the name was recorded), else null;
 * ``task.options``: where absent, the task options read back from ``task.source``
-  (:func:`doabench.envs.sources.recorded_identity`).
+  (:func:`doabench.envs.sources.recorded_identity`);
+* a ``*_ci95`` interval of the summary or a cell that its episodes do not back (a file written
+  before that rule: an interval of no width) becomes null
+  (:func:`doabench.results.intervals.drop_undefined_intervals`).
 
 ``doabench-weights/1`` -> ``/2`` (:func:`weights_v1_to_v2`): ``observations`` is the stored spec
 (read from the ``features`` and ``resolution`` blocks where the file has none; the 16x32 grid
@@ -40,6 +43,7 @@ from doabench.errors import DoabenchError, InputError
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 from doabench.results.identity import recorded_task_spec
+from doabench.results.intervals import drop_undefined_intervals
 
 RESULTS_PREFIX = "doabench.results/"
 #: the results schema new runs write
@@ -120,6 +124,7 @@ def results_v1_to_v2(data: Mapping[str, Any]) -> dict[str, Any]:
     task = out.get("task")
     if isinstance(task, dict) and not isinstance(task.get("options"), Mapping):
         task["options"] = _recorded_task_options(task)
+    drop_undefined_intervals(out)
     out["schema"] = "doabench.results/2"
     return out
 
