@@ -34,7 +34,8 @@ from doabench.envs.sources import EpisodeSource, register_task_kind
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import DoabenchError
-from doabench.features.spec import ObservationSpec
+from doabench.features.configs import FramesConfig, KindConfig, MapConfig
+from doabench.features.spec import ConfiguredKind, ObservationSpec
 from doabench.framing import FrameSpec
 from doabench.geometry import NO_SOURCE
 from doabench.trackers import SilenceHold, Tracker, available_trackers, hold_in_silences, make_tracker, register_tracker
@@ -135,7 +136,8 @@ def __dir__() -> list[str]:
 available_tasks()  # registers every task with Gymnasium at import time
 
 __all__ = [
-    "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "MicArray", "NO_SOURCE", "ObservationPlan", "ObservationSpec",
+    "ConfiguredKind", "DoabenchError", "Episode", "EpisodeSource", "FrameSpec", "FramesConfig", "KindConfig", "MapConfig",
+    "MicArray", "NO_SOURCE", "ObservationPlan", "ObservationSpec",
     "ResetContext", "SRPPHAT", "SilenceHold",
     "TaskSpec", "Tracker", "TrainableTracker", "atomic_path", "available_tasks", "available_trackers", "get_array", "get_task_spec",
     "hold_in_silences", "load_array_file", "make_tracker", "register_task", "register_task_kind", "register_tracker", "run", "single_threaded",

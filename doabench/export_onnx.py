@@ -5,7 +5,8 @@ whole episode, ``(batch, ..., frames, ...)`` with the frame axis at position 2 (
 doabench model lays it out; :meth:`NeuralTracker.episode_input` builds it from the features),
 output ``directions`` = ``(batch, frames, 3)`` (not normalised). Batch and frame counts are
 dynamic. The file's metadata records the tracker id, the weights (their shipped name, file name
-and SHA-256), features, resolution, frame spec and array. With ``onnxruntime`` installed (the
+and SHA-256), what the network reads (its ``ObservationSpec`` whole, as ``to_dict()`` stores it)
+and the array. With ``onnxruntime`` installed (the
 ``onnx`` extra: ``pip install 'doabench[onnx]'``) the export is checked against torch on random
 features.
 """
@@ -19,24 +20,26 @@ from typing import Any
 import numpy as np
 
 from doabench.errors import ConfigError, DoabenchError
+from doabench.trackers.base import observations_of
 
 FORMATS = ("onnx",)
 
 
 def example_features(tracker: Any, n_frames: int = 12, seed: int = 0) -> dict[str, np.ndarray]:
-    """Features of random audio on the tracker's frame grid and array: a realistic example input."""
-    spec = tracker.frame_spec
+    """Features of random audio on the tracker's observations and array: a realistic example input."""
+    observations = observations_of(tracker)
+    spec = observations.frames
     array = getattr(tracker, "trained_array", None)
     if array is None:
         raise ConfigError(f"tracker {tracker.name!r} has no trained_array to build an example input for")
     samples = spec.window + spec.hop * (n_frames - 1)
     audio = (0.1 * np.random.default_rng(seed).standard_normal((array.n_mics, samples))).astype(np.float32)
-    return tracker.observation_spec.plan(array).observations(audio, None)
+    return observations.plan(array).observations(audio, None)
 
 
 def metadata(tracker: Any, tracker_id: str) -> dict[str, str]:
     """The ONNX file's metadata: what the network is (tracker, weights by name, file and SHA-256,
-    whether trained) and what it reads (features, grid, frames, observations, array)."""
+    whether trained), what it reads (its observation spec, stored whole) and the array."""
     d = tracker.describe()
     weights = d.get("weights")
     return {
@@ -46,10 +49,7 @@ def metadata(tracker: Any, tracker_id: str) -> dict[str, str]:
         "doabench_weights_file": Path(str(weights)).name if weights else "",
         "doabench_weights_sha256": str(d.get("weights_hash") or ""),
         "doabench_trained": str(bool(d.get("trained", True))).lower(),
-        "doabench_features": json.dumps(list(tracker.features)),
-        "doabench_resolution": str(d.get("resolution") or ""),
-        "doabench_frame": json.dumps(tracker.frame_spec.to_dict()),
-        "doabench_observations": json.dumps(tracker.observation_spec.to_dict()),
+        "doabench_observations": json.dumps(observations_of(tracker).to_dict()),
         "doabench_array": str(d.get("array") or ""),
         "doabench_io": "input: network input for a whole episode, frame axis 2; output directions (batch, frames, 3)",
     }

@@ -17,6 +17,8 @@ import doabench
 from doabench.envs.env import DoaEnv
 from doabench.errors import ConfigError
 from doabench.features import ObservationSpec
+from doabench.features.configs import KindConfig, MapConfig
+from doabench.features.spec import ConfiguredKind
 from doabench.features.kinds import feature_kind
 from doabench.framing import FrameSpec
 
@@ -32,7 +34,7 @@ def _run(code: str) -> str:
     return done.stdout
 
 
-@pytest.mark.parametrize("example", ["frame_energy.py", "free_field.py", "plane_wave.py"])
+@pytest.mark.parametrize("example", ["frame_energy.py", "srp_peaks.py", "free_field.py", "plane_wave.py"])
 def test_the_page_shows_the_tested_examples(example):
     code = (EXAMPLES / example).read_text().rstrip()
     assert f"```python\n{code}\n```" in (ROOT / "docs" / "extending.md").read_text()
@@ -94,27 +96,129 @@ def test_a_plugin_simulator_backend_renders_free_field_physics_and_tasks():
     assert out.startswith("ok (8, 16)")
 
 
+def test_a_plugin_map_kind_is_on_the_grid_end_to_end(tmp_path):
+    """The page's map kind: named with its grid, stored at its grid's path, observed with the grid's
+    shape, computed from the shared maps, stored by make-dataset, read by a tracker declaring it."""
+    out = _run(f'''
+        import numpy as np
+        import doabench
+        from doabench.datasets import make_dataset
+        from doabench.datasets.reader import DatasetFile
+        from doabench.envs.env import DoaEnv
+        from doabench.errors import ConfigError
+        from doabench.features import FeatureKind, register_feature_kind
+        from doabench.features.kinds import item_name, parse_item_name, storage_path
+        from srp_peaks import SRP_PEAKS, PeakTracker
+
+        register_feature_kind(SRP_PEAKS)
+        assert item_name("srp_peaks", (4, 8)) == "srp_peaks:4x8" and parse_item_name("srp_peaks:4x8") == ("srp_peaks", (4, 8))
+        assert storage_path("srp_peaks:4x8") == "features/srp_peaks_4x8"
+        spec = doabench.ObservationSpec.of(("srp", "srp_peaks"), "4x8")
+        assert str(spec) == "srp(grid=4x8, delays=nearest)+srp_peaks(grid=4x8, delays=nearest) @ 4096/3072@16000"
+        assert spec.to_dict()["kinds"][1] == {{"kind": "srp_peaks", "grid": "4x8", "delays": "nearest"}}
+        assert doabench.ObservationSpec.from_dict(spec.to_dict()) == spec == doabench.ObservationSpec.parse(str(spec))
+        env = DoaEnv("sim-demo", spec)
+        assert env.observation_space["srp_peaks"].shape == (4, 8)
+        _, feats, _ = env.load_episode(0)
+        assert feats["srp"].any() and np.allclose(feats["srp_peaks"], np.clip(feats["srp"], 0, None) ** 2, atol=1e-6)
+        make_dataset("sim-demo", "{tmp_path}/peaks.h5", episodes=1, features="srp_peaks:4x8", progress=False)
+        stored = DatasetFile("{tmp_path}/peaks.h5")
+        assert list(stored.items) == ["srp_peaks:4x8"]
+        assert np.array_equal(stored.read(0, ["srp_peaks:4x8"])["srp_peaks:4x8"], feats["srp_peaks"])
+        doabench.register_tracker("srp-peaks")(PeakTracker)
+        tracker = doabench.make_tracker("srp-peaks:4x8")
+        assert tracker.observation_spec == doabench.ObservationSpec.of(("srp_peaks",), "4x8")
+        assert tracker.resolution == (4, 8) and tracker.features == ("srp_peaks",)
+        r = doabench.run("srp-peaks:4x8", "sim-demo", episodes=1, progress=False)
+        assert np.isfinite(r["summary"]["rmsae_all"])
+        try:  # a kind on the grid takes the grid's config
+            register_feature_kind(FeatureKind("flat_map", lambda c: (1,), compute=lambda s: s.maps, on_grid=True))
+        except ConfigError as exc:
+            assert "takes MapConfig" in str(exc), exc
+        else:
+            raise AssertionError("a map kind without MapConfig was registered")
+        print("ok")
+    ''')
+    assert out.startswith("ok")
+
+
 def test_a_tracker_declares_what_it_reads_as_one_value():
     spec = doabench.make_tracker("srp-max:8x16").observation_spec
-    assert spec == ObservationSpec(("srp",), (8, 16), FrameSpec(), "nearest")
+    assert spec == ObservationSpec(FrameSpec(), (ConfiguredKind("srp", MapConfig((8, 16), "nearest")),))
+    assert spec == ObservationSpec.of(("srp",), "8x16")
     assert spec.with_delays("exact").delays == "exact" and spec.plan("nao").frame_shape("srp") == (8, 16)
-    env = DoaEnv("sim-demo", **spec.env_options())
-    assert env.observation_space["srp"].shape == (8, 16)
+    env = DoaEnv("sim-demo", spec)
+    assert env.observations is spec and env.observation_space["srp"].shape == (8, 16)
+    with pytest.raises(ConfigError, match="not both"):
+        DoaEnv("sim-demo", spec, resolution=(4, 8))
     with pytest.raises(ConfigError, match="unknown delay mode"):
-        ObservationSpec(("srp",), delays="fractional")
+        ObservationSpec.of(("srp",), delays="fractional")
     with pytest.raises(ConfigError, match="unknown feature kind"):
-        ObservationSpec(("srp", "spectogram"))
+        ObservationSpec.of(("srp", "spectogram"))
+    with pytest.raises(ConfigError, match="takes a MapConfig"):
+        ConfiguredKind("srp", KindConfig())
+    with pytest.raises(ConfigError, match="share one grid"):
+        ObservationSpec(FrameSpec(), (ConfiguredKind("srp", MapConfig((8, 16))), ConfiguredKind("srp_max", MapConfig((16, 32)))))
+
+
+def test_a_tracker_class_reads_its_views_from_its_spec():
+    """features, resolution and frame_spec are views of observation_spec; a class setting one of
+    them to a value of its own is refused in one line (the environment would not read it)."""
+
+    class Reads(doabench.Tracker):
+        observation_spec = ObservationSpec.of(("srp", "gcc"), "4x8", FrameSpec(1024))
+
+    reads = Reads()
+    assert (reads.features, reads.resolution, reads.frame_spec) == (("srp", "gcc"), (4, 8), FrameSpec(1024))
+    with pytest.raises(ConfigError, match="sets features: declare what it reads"):
+        type("Old", (doabench.Tracker,), {"features": ("gcc",)})
+    with pytest.raises(ConfigError, match="observation_spec must be a doabench.ObservationSpec"):
+        type("Bad", (doabench.Tracker,), {"observation_spec": ("gcc",)})
+
+
+def test_the_spec_has_one_text_and_one_stored_form():
+    """Each configured kind round-trips through its text and stored forms, and so does the spec;
+    from_dict reads exactly what to_dict writes (anything else: one line)."""
+    spec = ObservationSpec.of(("srp", "srp_max", "gcc", "audio"), "8x16", FrameSpec(2048), "exact")
+    assert str(spec) == ("srp(grid=8x16, delays=exact)+srp_max(grid=8x16, delays=exact)+gcc+audio "
+                         "@ 2048/1536@16000")
+    assert spec.to_dict() == {"frames": {"window": 2048, "hop": 1536, "fs": 16000},
+                              "kinds": [{"kind": "srp", "grid": "8x16", "delays": "exact"},
+                                        {"kind": "srp_max", "grid": "8x16", "delays": "exact"},
+                                        {"kind": "gcc"}, {"kind": "audio"}]}
+    assert ObservationSpec.parse(str(spec)) == spec == ObservationSpec.from_dict(spec.to_dict())
+    assert (spec.kind_names, spec.resolution, spec.delays) == (("srp", "srp_max", "gcc", "audio"), (8, 16), "exact")
+    assert hash(spec) == hash(ObservationSpec.of(("srp", "srp_max", "gcc", "audio"), (8, 16), FrameSpec(2048), "exact"))
+    own = ObservationSpec.of(("spectrogram",), None, FrameSpec(), None, FrameSpec(512))
+    assert own.to_dict()["kinds"] == [{"kind": "spectrogram", "frames": {"window": 512, "hop": 384, "fs": 16000}}]
+    assert str(own) == "spectrogram(frames=512/384@16000) @ 4096/3072@16000"
+    assert ObservationSpec.parse(str(own)) == own == ObservationSpec.from_dict(own.to_dict())
+    assert own.resolution is None and own.delays is None and own.with_delays("exact") == own
+    same = ObservationSpec.of(("spectrogram",), None, FrameSpec(), None, FrameSpec())
+    assert same.to_dict()["kinds"] == [{"kind": "spectrogram", "frames": None}] and not same.separate_spectrogram_grid
+    assert ConfiguredKind.parse("srp(grid=4x8)") == ConfiguredKind("srp", MapConfig((4, 8), "nearest"))
+    frames = {"window": 4096, "hop": 3072, "fs": 16000}
+    for bad, match in [({"kinds": ["srp"]}, "not a stored observation spec"),
+                       ({"frames": frames, "kinds": ["srp"]}, "a stored kind is"),
+                       ({"frames": frames, "kinds": [{"kind": "srp", "grid": "8x16"}]}, "missing: delays"),
+                       ({"frames": frames, "kinds": [{"kind": "gcc", "grid": "8x16"}]}, "unknown: grid"),
+                       ({"frames": {"window": 4096}, "kinds": []}, "frames must be"),
+                       ({"frames": frames, "kinds": [{"kind": "mfcc"}]}, "unknown feature kind")]:
+        with pytest.raises(ConfigError, match=match):
+            ObservationSpec.from_dict(bad)
+    with pytest.raises(ConfigError, match="is not KINDS @"):
+        ObservationSpec.parse("srp(grid=8x16)")
 
 
 def test_the_environment_refuses_a_spectrogram_on_its_own_frames():
     """A tracker whose spectrogram has its own frame grid cannot be given it by the environment
     (another number of frames): one line, rather than observations it was not trained on."""
-    spec = ObservationSpec(("spectrogram",), frame_spec=FrameSpec(), spectrogram_frame_spec=FrameSpec(window=512))
+    spec = ObservationSpec.of(("spectrogram",), frame_spec=FrameSpec(), spectrogram_frame_spec=FrameSpec(window=512))
     assert spec.separate_spectrogram_grid
-    with pytest.raises(ConfigError, match="on its own frames"):
-        DoaEnv("sim-demo", **spec.env_options())
-    same = ObservationSpec(("spectrogram",), spectrogram_frame_spec=FrameSpec())
-    assert same.spectrogram_frame_spec is None and np.isfinite(DoaEnv("sim-demo", **same.env_options()).n_episodes)
+    with pytest.raises(ConfigError, match="on frames of its own"):
+        DoaEnv("sim-demo", spec)
+    same = ObservationSpec.of(("spectrogram",), spectrogram_frame_spec=FrameSpec())
+    assert same.spectrogram_frame_spec is None and np.isfinite(DoaEnv("sim-demo", same).n_episodes)
 
 
 def test_task_kinds_declare_their_options_and_scoring_policy():
@@ -191,23 +295,16 @@ def test_a_plugin_task_kind_runs_and_a_plane_wave_is_found_where_it_comes_from()
 def test_the_observation_contract_is_one_stored_value(tmp_path):
     """A tracker declares an ObservationSpec; results, weights and ONNX files store its to_dict(),
     and each file alone gives it back."""
-    import json
-
     from doabench_baselines.catalog import find_weights
     from doabench_baselines.weights import WeightsFile, read_metadata
-
-    from conftest import ROOT as root
 
     tracker = doabench.make_tracker("cross3d:16x32", weights="moving")
     spec = tracker.observation_spec
     assert ObservationSpec.from_dict(spec.to_dict()) == spec
     assert doabench.ObservationSpec is ObservationSpec
-    # a results file's features section is the spec (its trained_delays beside it is ignored)
-    results = json.loads((root / "results" / "sim-walk__cross3d_16x32__moving.json").read_text())
-    assert ObservationSpec.from_dict(results["features"]) == spec
     # a weights file: the stored spec, or for a file older than it, the same read from its features
     old = find_weights("cross3d", (16, 32), "moving")
-    assert "observations" not in old.metadata and old.observations == spec
+    assert old.observations == spec
     path = tracker.save_weights(tmp_path / "w.safetensors", {"observations": spec.with_delays("exact").to_dict()})
     saved = WeightsFile(path, read_metadata(path))
     assert saved.metadata["observations"] == spec.with_delays("exact").to_dict()
@@ -217,9 +314,9 @@ def test_the_observation_contract_is_one_stored_value(tmp_path):
 
     exact = doabench.make_tracker("cross3d:16x32", weights=str(path))
     assert exact.observation_spec == spec.with_delays("exact")
-    assert training_observations(exact, exact.frame_spec) == spec.with_delays("exact")
+    assert training_observations(exact) == spec.with_delays("exact")
     # the environment observes through the same value
-    env = DoaEnv("sim-demo", **spec.env_options())
+    env = DoaEnv("sim-demo", spec)
     assert env.observations == spec
     with pytest.raises(ConfigError, match="not a stored observation spec"):
         ObservationSpec.from_dict({"kinds": ["srp"]})

@@ -25,6 +25,7 @@ from doabench.features.kinds import (
     storage_path,
 )
 from doabench.features.plan import framed_audio
+from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 
 
@@ -85,7 +86,8 @@ def test_storage_paths_equal_the_schema_layout():
 
 def test_spaces_match_what_the_environment_declared():
     array = get_array("nao")
-    plan = ObservationPlan(OBSERVATION_KINDS, array, SPEC, ((8, 16),))
+    plan = ObservationSpec.of(OBSERVATION_KINDS, (8, 16), SPEC).plan(array)
+    assert isinstance(plan, ObservationPlan) and plan.spec == ObservationSpec.of(OBSERVATION_KINDS, "8x16", SPEC)
     lags = 2 * array.max_lag(SPEC.fs) + 1
     want = {
         "srp": spaces.Box(-np.inf, 1.0, (8, 16), np.float32),
@@ -96,13 +98,14 @@ def test_spaces_match_what_the_environment_declared():
         "vad": spaces.Discrete(2),
     }
     assert plan.observation_space() == spaces.Dict(want)
-    assert list(ObservationPlan(("gcc", "srp"), array, SPEC).observation_space().spaces) == ["gcc", "srp", "vad"]
+    assert list(ObservationSpec.of(("gcc", "srp"), None, SPEC).plan(array).observation_space().spaces) == [
+        "gcc", "srp", "vad"]
 
 
 def test_compute_equals_the_extractor():
     array = get_array("nao")
     audio, vad = _recording()
-    plan = ObservationPlan(("srp", "srp_max", "gcc", "spectrogram", "audio"), array, SPEC, ((4, 8), (8, 16)))
+    plan = ObservationSpec.of(("srp", "srp_max", "gcc", "spectrogram", "audio"), None, SPEC).plan(array, ((4, 8), (8, 16)))
     items = plan.compute(audio, vad)
     first = FeatureExtractor(array, kinds=EXTRACTOR_KINDS, resolution=(4, 8), frame_spec=SPEC)(audio, vad)
     second = FeatureExtractor(array, kinds=("srp", "srp_max"), resolution=(8, 16), frame_spec=SPEC)(audio, vad)
@@ -123,7 +126,7 @@ def test_compute_equals_the_extractor():
 def test_audio_only_still_frames_the_vad():
     """Framed audio needs no extractor, but the extractor still gives the frame VAD."""
     audio, vad = _recording()
-    plan = ObservationPlan(("audio",), "nao", SPEC)
+    plan = ObservationSpec.of(("audio",), None, SPEC).plan("nao")
     assert plan.extractor_kinds == ("srp_max",)
     obs = plan.observations(audio, vad)
     assert obs["audio"].shape[1:] == (12, SPEC.window) and len(obs["vad"]) == len(obs["audio"])

@@ -53,25 +53,23 @@ class Reads(doabench.Tracker):
 
 
 class ReadsDoubled(Reads):
-    features = ("doubled",)
+    observation_spec = doabench.ObservationSpec.of(("doubled",))
 
 
 class ReadsNanny(Reads):
-    features = ("nanny",)
+    observation_spec = doabench.ObservationSpec.of(("nanny",))
 
 
 class FineGrid(Reads):
-    features = ("srp",)
-
     @property
-    def resolution(self):
-        return (100000, 100000)
+    def observation_spec(self):  # built when asked: the grid is out of bounds
+        return doabench.ObservationSpec.of(("srp",), (100000, 100000))
 
 
-class NegativeGrid(FineGrid):
+class NegativeGrid(Reads):
     @property
-    def resolution(self):
-        return (-4, 8)
+    def observation_spec(self):
+        return doabench.ObservationSpec.of(("srp",), (-4, 8))
 '''
 
 KINDS = ("doubled", "nanny", "cplx", "boom", "numpyish", "shapeless", "negative", "huge", "badaxes", "good")

@@ -143,7 +143,7 @@ from doabench.features import FeatureKind
 class Steady(doabench.Tracker):
     """Always the same direction (the plug-in's tracker, declared by entry point only)."""
 
-    features = ("srp_max",)
+    observation_spec = doabench.ObservationSpec.of(("srp_max",))
 
     def reset(self, array, **context):
         pass
@@ -160,7 +160,7 @@ LOUDNESS = FeatureKind("loudness", lambda c: (c.array.n_mics,),
 class LoudLinear(doabench.Tracker):
     """A learned tracker on the plug-in's loudness: one linear layer, trainable by doabench train."""
 
-    features = ("loudness",)
+    observation_spec = doabench.ObservationSpec.of(("loudness",))
 
     def __init__(self, spec=None, **options):
         import torch
@@ -168,10 +168,6 @@ class LoudLinear(doabench.Tracker):
         super().__init__(spec, **options)
         torch.manual_seed(0)
         self.network = torch.nn.Linear(12, 3)
-
-    @property
-    def frame_spec(self):
-        return doabench.FrameSpec()
 
     def network_input(self, features):
         return features["loudness"]  # (B, T, 12)

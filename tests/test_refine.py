@@ -79,7 +79,7 @@ def _tracker(**options):
 
 def test_the_tracker_refines_in_step_and_track_alike_and_reads_audio_only_then():
     plain, refining = _tracker(), _tracker(refine="32x64")
-    assert "audio" not in plain.observation_spec.kinds and "audio" in refining.observation_spec.kinds
+    assert "audio" not in plain.observation_spec.kind_names and "audio" in refining.observation_spec.kind_names
     assert refining.describe()["refine"] == {"resolution": "32x64", "radius_deg": 180 / 3,  # 4x8: one elevation step
                                              "min_speed_deg_s": 0.0}
     rng = np.random.default_rng(6)

@@ -52,7 +52,7 @@ def test_register_task_from_a_file_without_editing_doabench(tmp_path):
 def test_tracker_registry_decorator_and_module_path():
     @doabench.register_tracker("toy-const-registry-test")
     class Toy(doabench.Tracker):
-        features = ("srp",)
+        observation_spec = doabench.ObservationSpec.of(("srp",))
 
         def step(self, observation):
             return np.array([0.0, 0.0, 1.0])

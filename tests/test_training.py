@@ -11,6 +11,8 @@ import torch
 
 import doabench
 from doabench.envs.sources import episode_seed
+from doabench.features import FeatureKind, register_feature_kind
+from doabench.features.kinds import FEATURE_KINDS
 from doabench.framing import FrameSpec
 from doabench.training.cache import TrajectoryCache, write_item
 from doabench.training.data import CachedItems, collate
@@ -34,18 +36,31 @@ class TinyNet(torch.nn.Module):
         return torch.tanh(y.transpose(1, 2))
 
 
+def energy_features(audio: torch.Tensor, vad: torch.Tensor) -> dict[str, torch.Tensor]:
+    frames = audio.unfold(-1, FS.window, FS.hop)  # (B, M, T, K)
+    return {"energy": torch.log(frames.pow(2).mean(-1) + 1e-8).transpose(1, 2)}
+
+
+#: the kind the tiny tracker reads, registered for each test (its spec names it); the trainer is
+#: given energy_features, the same values from the audio
+ENERGY = FeatureKind("energy", lambda c: (c.array.n_mics,),
+                     compute=lambda stft: torch.log(stft.frames.pow(2).mean(-1) + 1e-8),
+                     description="log frame power per microphone")
+
+
+@pytest.fixture(autouse=True)
+def energy_kind(monkeypatch):
+    monkeypatch.setattr(FEATURE_KINDS, "_entries", dict(FEATURE_KINDS.registered()))  # for this test only
+    register_feature_kind(ENERGY)
+
+
 class TinyTracker(doabench.Tracker):
     """Just enough learned tracker for the training protocol."""
 
-    features = ("energy",)
-
     def __init__(self, spec=None, **options):
         super().__init__(spec, **options)
+        self.observation_spec = doabench.ObservationSpec.of(("energy",), frame_spec=FS)
         self.network = TinyNet()
-
-    @property
-    def frame_spec(self):
-        return FS
 
     def network_input(self, features):
         return features["energy"]  # (B, T, M)
@@ -59,11 +74,6 @@ class TinyTracker(doabench.Tracker):
 def tiny_tracker() -> TinyTracker:
     torch.manual_seed(0)
     return TinyTracker()
-
-
-def energy_features(audio: torch.Tensor, vad: torch.Tensor) -> dict[str, torch.Tensor]:
-    frames = audio.unfold(-1, FS.window, FS.hop)  # (B, M, T, K)
-    return {"energy": torch.log(frames.pow(2).mean(-1) + 1e-8).transpose(1, 2)}
 
 
 def make_cache(folder: Path, n: int, seed: int, mics: int = M, length: int = L, silent_from: int | None = None) -> Path:
@@ -228,19 +238,10 @@ def test_export_writes_weights_with_training_metadata(tmp_path, caches):
 class MaxTracker(TinyTracker):
     """Reads the stored ``srp_max`` of 4x8 maps, like max-cnn1d."""
 
-    features = ("srp_max",)
-
     def __init__(self, spec=None, **options):
         super().__init__(spec, **options)
+        self.observation_spec = doabench.ObservationSpec.of(("srp_max",), (4, 8))
         self.network = TinyNet(2)
-
-    @property
-    def resolution(self):
-        return (4, 8)
-
-    @property
-    def frame_spec(self):
-        return FrameSpec()
 
     def network_input(self, features):
         return features["srp_max"]  # (B, T, 2)

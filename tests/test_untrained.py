@@ -107,7 +107,7 @@ def test_cli_prints_a_warning_as_one_line(tmp_path: Path, capsys) -> None:
 
     @doabench.register_tracker("toy-warning-test")
     class Warns(doabench.Tracker):
-        features = ("srp",)
+        observation_spec = doabench.ObservationSpec.of(("srp",))
 
         def __init__(self, **options) -> None:
             super().__init__(**options)

@@ -23,7 +23,7 @@ class Cross3DTracker(NeuralTracker):
     """Cross3D (paper IV-B) on SRP-PHAT maps and their maxima; spec = map resolution."""
 
     model_name = "cross3d"
-    features = ("srp", "srp_max")
+    observation_spec = doabench.ObservationSpec.of(("srp", "srp_max"))
     uses_resolution = True
 
     def __init__(self, spec: str | None = None, weights: str | None = None, device: str = "cpu",
@@ -46,7 +46,8 @@ class Cross3DTracker(NeuralTracker):
         self._refine_speed = speed
         self._refiner: MapRefiner | None = None
         if fine is not None:
-            self.features = (*type(self).features, "audio")  # the fine map is computed from the frame's audio
+            # the fine map is computed from the frame's audio
+            self.observation_spec = self.observation_spec.with_kinds(doabench.ConfiguredKind.of("audio"))
 
     def reset(self, array: doabench.MicArray, **context: Any) -> None:
         super().reset(array, **context)

@@ -22,7 +22,7 @@ class GccCnn1dTracker(NeuralTracker):
     """1D CNN over the GCC-PHAT values within the physical lag range (paper V-A)."""
 
     model_name = "gcc-cnn1d"
-    features = ("gcc",)
+    observation_spec = doabench.ObservationSpec.of(("gcc",))
 
     def build_model(self) -> nn.Module:
         from ..cnn1d import CausalCnn1d

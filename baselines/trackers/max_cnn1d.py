@@ -17,7 +17,7 @@ class MaxCnn1dTracker(NeuralTracker):
     """1D CNN over the normalised coordinates of each map's maximum (paper V-A); spec = resolution."""
 
     model_name = "max-cnn1d"
-    features = ("srp_max",)
+    observation_spec = doabench.ObservationSpec.of(("srp_max",), (64, 128))
     uses_resolution = True
 
     def _default_resolution(self) -> tuple[int, int]:

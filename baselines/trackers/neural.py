@@ -46,7 +46,9 @@ class NeuralTracker(doabench.Tracker):
     model_name: ClassVar[str] = ""
     #: whether the model is tied to an SRP map resolution (part of the weight file name)
     uses_resolution: ClassVar[bool] = False
-    default_frame_spec: ClassVar[doabench.FrameSpec] = doabench.FrameSpec()
+    #: what the network reads when no weights say it (random weights: ``weights=random``); a
+    #: tracker with weights reads its weights' own spec (:attr:`WeightsFile.observations`)
+    observation_spec = doabench.ObservationSpec.of(("srp",))
 
     @property
     def resolution_in_id(self) -> bool:  # type: ignore[override]
@@ -74,7 +76,9 @@ class NeuralTracker(doabench.Tracker):
             # Re-check now that the resolution is settled (a weight file for other maps is an error).
             self.weights_file.check(resolution=self._resolution)
         self._array = self._pick_array(array)
-        self._frame_spec = self.weights_file.frame_spec if self.weights_file is not None else self.default_frame_spec
+        #: what it reads: the spec its weights were trained on, as the weights entry carries it
+        #: (the class's on this resolution for random weights)
+        self.observation_spec = self._own_observations()
         import torch
 
         from ..streaming import StreamingRunner
@@ -104,6 +108,16 @@ class NeuralTracker(doabench.Tracker):
     def _default_resolution(self) -> tuple[int, int] | None:
         return None
 
+    def _own_observations(self) -> doabench.ObservationSpec:
+        declared = type(self).observation_spec
+        if self.weights_file is None:
+            return doabench.ObservationSpec.of(declared.kind_names, self._resolution, declared.frames)
+        stored = self.weights_file.observations
+        if stored.kind_names != declared.kind_names:
+            raise ConfigError(f"weights file {self.weights_file.path.name} was trained on {stored}, not on the kinds "
+                              f"{self.model_name} reads ({', '.join(declared.kind_names)})")
+        return stored
+
     def _pick_resolution(self, asked: tuple[int, int] | None) -> tuple[int, int] | None:
         """The map resolution: the one asked for, else the weights' own, else the model's default."""
         if not self.uses_resolution:
@@ -123,14 +137,6 @@ class NeuralTracker(doabench.Tracker):
         return doabench.get_array(array or "nao")
 
     # -- what the environment needs -----------------------------------------------------------------
-    @property
-    def resolution(self) -> tuple[int, int] | None:
-        return self._resolution
-
-    @property
-    def frame_spec(self) -> doabench.FrameSpec:
-        return self._frame_spec
-
     @property
     def trained_array(self) -> doabench.MicArray:
         """The array the weights were trained for (the ``array`` option, else the weights' own)."""
@@ -210,34 +216,37 @@ class NeuralTracker(doabench.Tracker):
 
     @property
     def trained_delays(self) -> str | None:
-        """The SRP delay mode of the maps its weights were trained on (their metadata), or None
-        for random weights."""
-        return self.weights_file.delay_mode if self.weights_file is not None else None
+        """The SRP delay mode of the maps its weights were trained on (its weights' spec), or None
+        for random weights and a network that reads no map."""
+        return self.observation_spec.delays if self.weights_file is not None else None
 
     def save_weights(self, path: str | Path, metadata: Mapping[str, Any] | None = None) -> Path:
         """Write the network to a weight file (training protocol: ``save_weights(path, metadata)``).
 
-        The file's metadata is built here (model, resolution, array positions, the observations it
-        reads as :attr:`observation_spec`, parameter count, version, date); from ``metadata`` it takes
-        ``training`` (the recipe summary), the SRP delays it was trained on (``observations.delays``;
-        ``feature_settings.delays`` from trainers older than that; default ``nearest``) and ``array``
-        (the training array's name or file, whose positions are recorded), and keeps its other keys
-        as they are. The keys built here win over the caller's.
+        The file's metadata is built here (model, resolution, array positions, the observations the
+        network reads, parameter count, version, date); from ``metadata`` it takes ``training`` (the
+        recipe summary), ``observations`` (the stored :class:`~doabench.ObservationSpec` it was
+        trained on, whose delays are kept; else :attr:`observation_spec` on
+        ``feature_settings.delays`` from trainers older than that, default ``nearest``) and
+        ``array`` (the training array's name or file, whose positions are recorded), and keeps its
+        other keys as they are. The keys built here win over the caller's.
         """
         extra = dict(metadata or {})
         training = extra.pop("training", None)
-        trained_on = extra.pop("observations", None) or {}
-        delays = trained_on.get("delays") or (extra.get("feature_settings") or {}).get(
-            "delays", extra.pop("delay_mode", "nearest"))
+        trained_on = extra.pop("observations", None)
+        legacy = (extra.get("feature_settings") or {}).get("delays", extra.pop("delay_mode", None))
+        own = self.observation_spec.only(self.network_features)
+        delays = (doabench.ObservationSpec.from_dict(trained_on).delays if trained_on else legacy) or own.delays
+        observations = own.with_delays(delays)
         array = self._array
         if isinstance(extra.get("array"), str):
             array = doabench.get_array(extra["array"])
             self.check_array_fits(array)
         config = {"resolution": resolution_text(self._resolution)} if self.uses_resolution else {}
-        meta = make_metadata(self.model_name, self.model, array=array, frame_spec=self.frame_spec,
-                             features=self.features, resolution=self._resolution, delay_mode=delays,
-                             model_config=config, training=training,
-                             observations=self.observation_spec.with_delays(delays).to_dict())
+        meta = make_metadata(self.model_name, self.model, array=array, frame_spec=observations.frames,
+                             features=observations.kind_names, resolution=observations.resolution,
+                             delay_mode=observations.delays or "nearest", model_config=config, training=training,
+                             observations=observations.to_dict())
         for key, value in extra.items():
             meta.setdefault(key, value)
         return save_weights(path, self.model, meta)
@@ -263,11 +272,10 @@ class NeuralTracker(doabench.Tracker):
         if not source.trained:
             raise ConfigError(f"{name}: the tracker has no trained weights to start from (weights=random)")
         mine, theirs = self.observation_spec, source.observation_spec
-        if (mine.kinds, mine.frame_spec, mine.spectrogram_frame_spec) != (
-                theirs.kinds, theirs.frame_spec, theirs.spectrogram_frame_spec) or theirs.delays != mine.delays:
-            raise ConfigError(f"{name}: its weights read other observations ({', '.join(theirs.kinds)} on "
-                              f"{theirs.frame_spec.to_dict()}, {theirs.delays} delays) than {self.name} trains on "
-                              f"({', '.join(mine.kinds)} on {mine.frame_spec.to_dict()}, {mine.delays} delays)")
+        # the grid may differ (adapt_weights carries the weights over); nothing else may
+        if theirs.with_grid(mine.resolution) != mine.with_grid(mine.resolution):
+            raise ConfigError(f"{name}: its weights read other observations ({theirs}) than {self.name} trains on "
+                              f"({mine})")
         if source.trained_array.positions.shape != self.trained_array.positions.shape or not np.allclose(
                 source.trained_array.positions, self.trained_array.positions):
             raise ConfigError(f"{name}: its weights were trained on the {source.trained_array.name} array, "
@@ -313,9 +321,10 @@ class NeuralTracker(doabench.Tracker):
 
     @property
     def network_features(self) -> tuple[str, ...]:
-        """The observation kinds the network reads: the class's ``features`` (an instance may read
-        more for what it does after the network, e.g. Cross3D's ``refine`` reads ``audio``)."""
-        return tuple(type(self).features)
+        """The observation kinds the network reads: those of the class's ``observation_spec`` (an
+        instance may read more for what it does after the network, e.g. Cross3D's ``refine`` reads
+        ``audio``)."""
+        return type(self).observation_spec.kind_names
 
     def frame_input(self, observation: Mapping[str, np.ndarray]) -> torch.Tensor:
         """One observation -> the model's input frame ``(1, *frame_shape)``: the episode path

@@ -22,7 +22,7 @@ class SeldnetTracker(SpectrogramTracker):
 
     model_name = "seldnet"
     causal = False
-    default_frame_spec = doabench.FrameSpec(window=512)
+    observation_spec = doabench.ObservationSpec.of(("spectrogram",), frame_spec=doabench.FrameSpec(window=512))
 
     def build_model(self) -> nn.Module:
         from ..seldnet import Seldnet

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 class SpectrogramTracker(NeuralTracker):
     """A tracker on magnitude and phase spectrograms ``(2 n_mics, window / 2)`` per frame."""
 
-    features = ("spectrogram",)
+    observation_spec = doabench.ObservationSpec.of(("spectrogram",))
     #: the paper trains its spectrogram models in rooms with T60 in [0, 0.3] s (section V-A)
     training_defaults = {"t60": (0.0, 0.3)}
 

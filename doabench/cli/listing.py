@@ -32,7 +32,7 @@ def main(args: argparse.Namespace) -> int:
         for name, cls in trackers.items():
             doc = summary(cls.__doc__)
             kind = "causal " if cls.causal else "offline"
-            print(f"{name:<{width}}  {kind}  {','.join(cls.features):<18} {doc}")
+            print(f"{name:<{width}}  {kind}  {','.join(cls.observation_spec.kind_names):<18} {doc}")
     return 0
 
 

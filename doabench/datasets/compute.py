@@ -18,8 +18,9 @@ from doabench.datasets.schema import TRUTH_KEYS, FeatureRequest
 from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, InputError
-from doabench.features.kinds import DEFAULT_RESOLUTION, MAP_KINDS, feature_kind, storage_path
+from doabench.features.kinds import feature_kind, storage_path
 from doabench.features.plan import ObservationPlan
+from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 
 
@@ -39,7 +40,7 @@ def one_thread() -> Iterator[None]:
 
 
 def _map_grid(request: FeatureRequest) -> tuple[int, int]:
-    """The SRP grid of an srp request (``parse_feature`` always gives one)."""
+    """The SRP grid of a map request (``parse_feature`` always gives one)."""
     if request.resolution is None:
         raise ConfigError(f"feature {request.kind!r} needs a resolution, e.g. {request.kind}:16x32")
     return request.resolution
@@ -48,14 +49,18 @@ def _map_grid(request: FeatureRequest) -> tuple[int, int]:
 def requests_plan(requests: Sequence[FeatureRequest], array: MicArray, frame_spec: FrameSpec, delays: str = "nearest"
                   ) -> ObservationPlan | None:
     """The observation plan of the computed features of ``requests`` (None when only audio is
-    stored: then nothing is computed): srp and srp_max on every requested srp grid, the other
-    computed kinds (gcc, spectrogram, a plug-in's) once."""
-    srp = [_map_grid(r) for r in requests if r.kind in MAP_KINDS]
-    once = tuple(r.kind for r in requests if r.kind not in MAP_KINDS and feature_kind(r.kind).compute is not None)
-    kinds = (MAP_KINDS if srp else ()) + once
-    if not kinds:
+    stored: then nothing is computed): the requested kinds on the SRP grid (srp, a plug-in map) and
+    the kinds they come with (srp_max) on every requested grid, the other computed kinds (gcc,
+    spectrogram, a plug-in's) once. A dataset stores the items its requests name
+    (:meth:`FeatureRequest.stored`), not every kind on every grid."""
+    maps = [r for r in requests if feature_kind(r.kind).on_grid]
+    grids = list(dict.fromkeys(_map_grid(r) for r in maps))
+    on_grid = tuple(dict.fromkeys(k for r in maps for k in (r.kind, *feature_kind(r.kind).comes_with)))
+    once = tuple(r.kind for r in requests if not feature_kind(r.kind).on_grid and feature_kind(r.kind).compute is not None)
+    if not on_grid + once:
         return None
-    return ObservationPlan(kinds, array, frame_spec, srp or (DEFAULT_RESOLUTION,), delays)
+    spec = ObservationSpec.of(on_grid + once, grids[0] if grids else None, frame_spec, delays)
+    return spec.plan(array, grids or None)
 
 
 class EpisodeComputer:
@@ -74,12 +79,14 @@ class EpisodeComputer:
         self.requests = tuple(requests)
         self.float16 = float16
         self.delays = delays
-        self.sample_vad = sample_vad or any(r.kind == "audio" for r in self.requests)
+        self.sample_vad = sample_vad or any(r.framed for r in self.requests)
         self.device = device
         self.frame_spec = spec.frames
         self.array = get_array(spec.array)
         self.source = source if source is not None else make_episode_source(spec, device=device, **source_options)
         self.plan = requests_plan(self.requests, self.array, self.frame_spec, delays)
+        #: the computed items the requests store (a plan computes its map kinds on every grid)
+        self.stored = {name for r in self.requests if not r.framed for name in r.stored()}
 
     def __len__(self) -> int:
         return len(self.source)
@@ -90,7 +97,7 @@ class EpisodeComputer:
             return {}
         items = self.plan.compute(audio, sample_vad, array, self.device)
         out: dict[str, np.ndarray] = {}
-        for name in self.plan.names():
+        for name in (n for n in self.plan.names() if n in self.stored):
             dtype = np.float16 if (self.float16 and feature_kind(name.partition(":")[0]).half) else np.float32
             out[storage_path(name)] = items[name].astype(dtype, copy=False)
         return out
@@ -115,8 +122,10 @@ class EpisodeComputer:
         for key in TRUTH_KEYS:
             arrays[f"truth/{key}"] = np.asarray(truth[key], np.float64)
         arrays["vad"] = np.asarray(truth["vad"], bool)
-        if any(r.kind == "audio" for r in self.requests):
-            arrays["audio"] = np.asarray(episode.audio, np.float32)
+        recording = [r for r in self.requests if r.framed]  # the recording itself, stored whole
+        for r in recording:
+            arrays[storage_path(r.name)] = np.asarray(episode.audio, np.float32)
+        if recording:
             arrays["sample_directions"] = np.asarray(episode.sample_directions, np.float32)
         if self.sample_vad:
             arrays["sample_vad"] = np.asarray(episode.sample_vad, bool)

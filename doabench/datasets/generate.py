@@ -80,7 +80,7 @@ def generation_config(spec: TaskSpec, requests: Sequence[FeatureRequest], episod
         "shard": list(shard) if shard else None,
         "float16": bool(float16),
         "delays": delays,
-        "sample_vad": bool(sample_vad or any(r.kind == "audio" for r in requests)),
+        "sample_vad": bool(sample_vad or any(r.framed for r in requests)),
         "compression": compression,
         "backend": backend,
         "device": device or "cpu",

@@ -14,7 +14,7 @@ from doabench.arrays import MicArray
 from doabench.datasets.layout import is_complete, read_metadata
 from doabench.datasets.schema import EPISODES, TRUTH_KEYS, episode_name, loads_attr, open_h5, parse_feature
 from doabench.errors import InputError, NotFoundError
-from doabench.features.kinds import MAP_KINDS, item_name, storage_path
+from doabench.features.kinds import FEATURE_KINDS, item_name, storage_path
 from doabench.framing import FrameSpec
 
 
@@ -112,13 +112,14 @@ class DatasetFile:
         if name in self.items:
             return name
         kind, sep, res = str(name).partition(":")
-        if kind in MAP_KINDS:
+        found = FEATURE_KINDS.find(kind)
+        if found is not None and found[1].on_grid:
             if not sep:
                 cands = [i for i in self.items if i.split(":")[0] == kind]
                 if len(cands) == 1:
                     return cands[0]
             else:
-                canonical = item_name(kind, parse_feature('srp:' + res).resolution)
+                canonical = item_name(kind, parse_feature(f'{kind}:{res}').resolution)
                 if canonical in self.items:
                     return canonical
         raise NotFoundError(f"{self.path} does not store feature {name!r} (it has {', '.join(self.items) or 'none'})")

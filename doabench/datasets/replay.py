@@ -6,30 +6,31 @@ episode in index order (its original index is in the metadata as ``episode_index
 
 :class:`DatasetEpisodes` serves episodes two ways:
 
-* ``stored_features(index, kinds, resolution, frame_spec, delays)``: the hook
-  :meth:`DoaEnv.load_episode` calls first. When the file stores the requested features for the
-  environment's frames and delay mode, it returns ``(episode, features, truth)`` read from the
+* ``stored_features(index, observations)``: the hook :meth:`DoaEnv.load_episode` calls first,
+  with the environment's :class:`~doabench.features.spec.ObservationSpec`. When the file stores
+  its kinds on its grid, frames and delay mode, it returns ``(episode, features, truth)`` read from the
   file (no simulation, no feature computation); otherwise None.
 * ``episode(index)``: an :class:`Episode` with the stored audio, so the environment computes any
-  feature itself (needs a file made with the ``audio`` feature).
+  feature itself (needs a file that stores the recording: the ``audio`` feature).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from doabench.arrays import MicArray
 from doabench.datasets.reader import DatasetFile
+from doabench.datasets.schema import stores_recording
 from doabench.envs.options import DatasetOptions
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import InputError, NotFoundError
-from doabench.features.kinds import item_names
+from doabench.features.kinds import feature_kind, item_names, storage_path
+from doabench.features.spec import ObservationSpec
 from doabench.features.plan import framed_audio
-from doabench.framing import FrameSpec
 
 PREFIX = "file:"
 KIND = "dataset"
@@ -78,7 +79,9 @@ class DatasetEpisodes:
         self.file = DatasetFile(self.path)
         self.indices = list(self.file.indices)
         self.delays = str(self.file.config.get("delays", "nearest"))
-        self.has_audio = "audio" in self.file.items
+        #: the item that stores the recording itself (``audio``), if the file has one
+        self.recording = next((i for i in self.file.items if stores_recording(i)), None)
+        self.has_audio = self.recording is not None
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -110,35 +113,38 @@ class DatasetEpisodes:
                 or not np.all(np.isfinite(sample_directions)) or not np.all(np.any(sample_directions, axis=1))):
             raise InputError(f"{self.path}: episode {index}: sample_directions holds non-finite or zero vectors "
                              f"(shape {sample_directions.shape}); the file is corrupt")
-        return Episode(audio=g["audio"][()], fs=int(g.attrs.get("fs", self.file.frames.fs)),
+        return Episode(audio=g[storage_path(self.recording)][()], fs=int(g.attrs.get("fs", self.file.frames.fs)),
                        sample_vad=np.asarray(g["sample_vad"][()], bool),
                        sample_directions=sample_directions,
                        metadata=self._metadata(index), array=self._array(index))
 
-    def stored_names(self, kinds: Sequence[str], resolution: tuple[int, int]) -> list[str] | None:
-        """The stored item of each environment feature kind, or None when one is missing."""
-        names = item_names(kinds, resolution)
+    def stored_names(self, observations: ObservationSpec) -> list[str] | None:
+        """The stored item of each observation kind, or None when one is missing."""
+        names = item_names(observations.kind_names, observations.resolution)
         return names if all(n in self.file.items for n in names) else None
 
-    def stored_features(self, j: int, kinds: Sequence[str], resolution: tuple[int, int], frame_spec: FrameSpec,
-                        delays: str = "nearest"):
+    def stored_features(self, j: int, observations: ObservationSpec):
         """``(episode, features {kind: (T, ...)} float32 + vad int64, truth)`` from the file, or None
-        when the file cannot serve these features (then the environment renders ``episode(j)``)."""
+        when the file cannot serve ``observations`` (then the environment renders ``episode(j)``)."""
         index = self._index(j)
-        names = self.stored_names(kinds, resolution)
+        kinds, frame_spec = observations.kind_names, observations.frames
+        names = self.stored_names(observations)
         same_frames = frame_spec == self.file.frames
-        if names is None or not same_frames or delays != self.delays:
+        delays = observations.delays
+        other_delays = delays not in (None, self.delays)  # kinds off the SRP grid have no delays
+        if names is None or not same_frames or other_delays:
             if self.has_audio:
                 return None
             why = (f"frames {frame_spec.to_dict()} (stored: {self.file.frames.to_dict()})" if not same_frames else
-                   f"delays {delays!r} (stored: {self.delays!r})" if delays != self.delays else
-                   f"features {list(kinds)} at {resolution[0]}x{resolution[1]}")
+                   f"delays {delays!r} (stored: {self.delays!r})" if other_delays else
+                   f"features {observations}")
             raise InputError(f"{self.path} stores {', '.join(self.file.items)} but the environment asks for {why}; "
                              "regenerate the file with those features or with audio")
         stored = self.file.read(index, names)
         feats = {k: np.asarray(stored[n], np.float32) for k, n in zip(kinds, names)}
-        if "audio" in feats:  # the environment's audio observation is framed: (T, M, window)
-            feats["audio"] = framed_audio(feats["audio"], frame_spec)
+        for kind in kinds:  # a framed observation (audio) is stored whole: framed here, (T, M, window)
+            if feature_kind(kind).framed:
+                feats[kind] = framed_audio(feats[kind], frame_spec)
         truth = self.file.truth(index)
         feats["vad"] = truth["vad"].astype(np.int64)
         g = self.file.group(index)

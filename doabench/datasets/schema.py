@@ -34,9 +34,9 @@ from doabench.features.kinds import (
     DATASET_KINDS,
     FEATURE_KINDS,
     FEATURES_GROUP,
-    MAP_KINDS,
     OBSERVATION_KINDS,
     FeatureKind,
+    feature_kind,
     item_name,
     storage_path,
 )
@@ -146,10 +146,23 @@ class FeatureRequest:
         """Canonical text form: ``srp:16x32``, ``gcc``, ``spectrogram``, ``audio``."""
         return item_name(self.kind, self.resolution)
 
+    @property
+    def framed(self) -> bool:
+        """Whether it stores the recording itself (a framed kind: ``audio``), not computed features."""
+        return feature_kind(self.kind).framed
+
     def stored(self) -> dict[str, str]:
-        """Item name -> path inside an episode group of everything this request stores."""
-        kinds = MAP_KINDS if self.kind in MAP_KINDS else (self.kind,)  # an srp map comes with its maximum
+        """Item name -> path inside an episode group of everything this request stores (a kind and
+        the kinds it comes with: an srp map with its maximum)."""
+        kinds = (self.kind, *feature_kind(self.kind).comes_with)
         return {name: storage_path(name) for name in (item_name(k, self.resolution) for k in kinds)}
+
+
+def stores_recording(item: str) -> bool:
+    """Whether the stored item ``item`` is the recording itself (a framed kind's: ``audio``); False
+    for computed features and for kinds not registered here."""
+    found = FEATURE_KINDS.find(str(item).partition(":")[0])
+    return found is not None and found[1].framed
 
 
 _RES = re.compile(r"^(\d+)x(\d+)$")

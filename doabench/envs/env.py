@@ -37,22 +37,26 @@ from doabench.envs.sources import make_episode_source
 from doabench.envs.spec import TaskSpec
 from doabench.episode import Episode
 from doabench.errors import ConfigError, InputError
-from doabench.features.kinds import DEFAULT_RESOLUTION, check_kinds, own_frame_kinds
+from doabench.features.kinds import feature_kind
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
-from doabench.geometry import NO_SOURCE_ERROR_DEG, fold_to_upper, great_circle_error, is_no_source, parse_resolution
+from doabench.geometry import NO_SOURCE_ERROR_DEG, fold_to_upper, great_circle_error, is_no_source
 
 
 class DoaEnv(gymnasium.Env):
-    """``gymnasium.make("doabench/<task>-v<version>", features=("srp", "srp_max"), resolution=(16, 32))``.
+    """``DoaEnv(task, observations)``, or ``gymnasium.make("doabench/<task>-v<version>",
+    features=("srp", "srp_max"), resolution=(16, 32))``.
 
-    Parameters: ``task`` (id or TaskSpec); ``features`` (srp, srp_max, gcc, spectrogram, audio or a
-    registered plug-in kind);
-    ``resolution`` ((n_theta, n_phi) or "16x32"); ``delays`` ("nearest" or "exact");
-    ``frame_spec`` (default: the task's); ``spectrogram_frame_spec`` (only None or ``frame_spec``:
-    the environment frames every observation alike; a tracker's
-    :attr:`~doabench.Tracker.observation_spec` gives all these at once through
-    :meth:`~doabench.features.spec.ObservationSpec.env_options`); ``device`` for simulation and features; ``episodes``:
+    Parameters: ``task`` (id or TaskSpec); ``observations``: what it observes, one
+    :class:`~doabench.features.spec.ObservationSpec` (a tracker's
+    :attr:`~doabench.Tracker.observation_spec`), kept whole as :attr:`observations`. Without it,
+    the flat keywords describe them and are turned into that value once, here
+    (:meth:`ObservationSpec.of <doabench.features.spec.ObservationSpec.of>`): ``features`` (srp,
+    srp_max, gcc, spectrogram, audio or a registered plug-in kind; default srp and srp_max),
+    ``resolution`` ((n_theta, n_phi) or "16x32"), ``delays`` ("nearest" or "exact"), ``frame_spec``
+    (default: the task's) and ``spectrogram_frame_spec``. The environment frames every observation
+    alike, so a kind on frames of its own other than the main ones is refused.
+    ``device`` for simulation and features; ``episodes``:
     this environment's share of the task's episodes (indices), served in order by ``reset()``
     without an ``episode`` option, each once per pass (``info["repeat"]`` counts the passes; see
     :func:`doabench.envs.vector.make_vec`, which splits a task across sub-environments);
@@ -63,32 +67,38 @@ class DoaEnv(gymnasium.Env):
     metadata = {"render_modes": []}
     observation_space: spaces.Dict  # the plan's: {kind: Box} plus vad
 
-    def __init__(self, task: str | TaskSpec, features: Sequence[str] = ("srp", "srp_max"),
-                 resolution: tuple[int, int] | str = DEFAULT_RESOLUTION, delays: str = "nearest",
-                 frame_spec: FrameSpec | None = None, device: str | None = None, cache_size: int = 2,
-                 episodes: Sequence[int] | None = None, spectrogram_frame_spec: FrameSpec | None = None,
-                 **source_options: Any) -> None:
+    def __init__(self, task: str | TaskSpec, observations: ObservationSpec | None = None, *,
+                 features: Sequence[str] | None = None, resolution: tuple[int, int] | str | None = None,
+                 delays: str | None = None, frame_spec: FrameSpec | None = None, device: str | None = None,
+                 cache_size: int = 2, episodes: Sequence[int] | None = None,
+                 spectrogram_frame_spec: FrameSpec | None = None, **source_options: Any) -> None:
         super().__init__()
         self.spec_task = get_task_spec(task)
-        self.features = check_kinds(features)
-        self.resolution = parse_resolution(resolution) if isinstance(resolution, str) else tuple(resolution)
-        self.delays = delays
-        self.frame_spec = frame_spec or self.spec_task.frames
-        if self.frame_spec.fs != self.spec_task.frames.fs:
+        flat = {"features": features, "resolution": resolution, "delays": delays, "frame_spec": frame_spec,
+                "spectrogram_frame_spec": spectrogram_frame_spec}
+        if observations is None:
+            observations = ObservationSpec.of(("srp", "srp_max") if features is None else features, resolution,
+                                              frame_spec or self.spec_task.frames, delays, spectrogram_frame_spec)
+        elif not isinstance(observations, ObservationSpec):
+            raise ConfigError(f"observations must be an ObservationSpec, got {type(observations).__name__}")
+        elif any(v is not None for v in flat.values()):
+            raise ConfigError(f"give the observations as one ObservationSpec or as keywords, not both "
+                              f"({', '.join(k for k, v in flat.items() if v is not None)})")
+        if observations.frames.fs != self.spec_task.frames.fs:
             raise ConfigError(f"task {self.spec_task.id!r} runs at {self.spec_task.frames.fs} Hz, "
-                              f"not {self.frame_spec.fs} Hz")
-        own = own_frame_kinds(self.features)
-        if spectrogram_frame_spec not in (None, self.frame_spec) and own:
-            raise ConfigError(f"the environment frames every observation on one grid ({self.frame_spec.to_dict()}); "
-                              f"{', '.join(own)} on its own frames ({spectrogram_frame_spec.to_dict()}) has another "
+                              f"not {observations.frames.fs} Hz")
+        if observations.separate_spectrogram_grid:
+            own = [str(k) for k in observations.kinds if feature_kind(k.kind).own_frames]
+            raise ConfigError(f"the environment frames every observation on one grid "
+                              f"({observations.frames.to_dict()}); {', '.join(own)} on frames of its own has another "
                               "number of frames: compute it with an ObservationPlan instead")
+        #: what this environment observes, as the one value trackers declare and files store
+        self.observations = observations
         self.device = device
         self.array: MicArray = get_array(self.spec_task.array)
         self.source = make_episode_source(self.spec_task, device=device, **source_options)
         self._cache: OrderedDict[int, tuple[Episode, dict[str, np.ndarray], dict[str, np.ndarray]]] = OrderedDict()
         self._cache_size = max(1, cache_size)
-        #: what this environment observes, as the one value trackers declare and files store
-        self.observations = ObservationSpec.of(self.features, self.resolution, self.frame_spec, delays)
         # the one pipeline from an episode's audio to its observations, spaces included
         self.plan = self.observations.plan(self.array)
         self.observation_space = self.plan.observation_space()
@@ -98,6 +108,22 @@ class DoaEnv(gymnasium.Env):
         self.episode_share: list[int] | None = None if episodes is None else self._check_share(episodes)
         self._share_next = 0  # position in the share of the next reset() without an episode option
         self._share_pass = 0  # completed passes through the share
+
+    # -- what it observes (views of ``observations``) -----------------------------------------------
+    @property
+    def features(self) -> tuple[str, ...]:
+        """The observation kinds' names (the observation keys besides ``vad``)."""
+        return self.observations.kind_names
+
+    @property
+    def resolution(self) -> tuple[int, int] | None:
+        """The SRP grid of the kinds on it, or None when it observes no map."""
+        return self.observations.resolution
+
+    @property
+    def frame_spec(self) -> FrameSpec:
+        """The frames of every observation."""
+        return self.observations.frames
 
     def _check_share(self, episodes: Sequence[int]) -> list[int]:
         try:
@@ -125,9 +151,10 @@ class DoaEnv(gymnasium.Env):
             self._cache.move_to_end(index)
             return self._cache[index]
         # Sources of precomputed features (dataset replay, doabench.datasets.replay) may serve them
-        # directly: stored_features(...) -> (episode, features incl. vad, truth), or None to render.
+        # directly: stored_features(index, observations) -> (episode, features incl. vad, truth), or
+        # None to render.
         provider = getattr(self.source, "stored_features", None)
-        stored = provider(index, self.features, self.resolution, self.frame_spec, self.delays) if provider else None
+        stored = provider(index, self.observations) if provider else None
         if stored is not None:
             episode, feats, truth = stored
         else:

@@ -17,10 +17,13 @@ dataset schema and the environment can read the kinds without importing torch or
 without an import cycle (the plan imports the transforms, the transforms import this module). The
 built-in kinds' ``compute`` only read the context's stages, so this module needs no torch.
 
-Names: an srp or srp_max item carries its grid, ``srp:16x32`` / ``srp_max:16x32``; the other
-kinds are named by the kind alone (``gcc``, ``spectrogram``, ``audio``). In a dataset file an item
-``srp:16x32`` lies at ``features/srp_16x32``, ``gcc`` at ``features/gcc`` and ``audio`` (the raw
-recording) at ``audio`` (docs/hdf5-schema.md).
+Each kind declares its config class (``config``, :mod:`doabench.features.configs`): the settings
+an observation of it carries (a map kind's grid and delays, the spectrogram's own frames).
+
+Names: an item of a kind on the SRP grid (``on_grid``: srp, srp_max, a plug-in map) carries its
+grid, ``srp:16x32`` / ``srp_max:16x32``; the other kinds are named by the kind alone (``gcc``,
+``spectrogram``, ``audio``). In a dataset file an item ``srp:16x32`` lies at ``features/srp_16x32``,
+``gcc`` at ``features/gcc`` and ``audio`` (the raw recording) at ``audio`` (docs/hdf5-schema.md).
 """
 from __future__ import annotations
 
@@ -31,16 +34,14 @@ from typing import Any, Callable, Iterable, Literal, NamedTuple, Sequence
 import numpy as np
 
 from doabench.errors import ConfigError, DoabenchError, FeatureKindError, one_line
+# DEFAULT_RESOLUTION and DELAY_MODES are read from here by the layers that name kinds
+from doabench.features.configs import DEFAULT_RESOLUTION, DELAY_MODES, FramesConfig, KindConfig, MapConfig  # noqa: F401
 from doabench.framing import FrameSpec
 from doabench.geometry import grid_angles, parse_resolution, resolution_text
 from doabench.plugins import Registry
 
-#: The SRP grid when nothing asks for another one.
-DEFAULT_RESOLUTION = (16, 32)
 #: Where the dataset file keeps computed features (the raw ``audio`` lies beside them).
 FEATURES_GROUP = "features"
-#: The SRP delay modes: pair delays rounded to whole samples (the paper's) or exact fractional ones.
-DELAY_MODES = ("nearest", "exact")
 DelayMode = Literal["nearest", "exact"]
 #: Entry-point group of feature kinds added by other packages (``name = "package.module:KIND"``).
 ENTRY_POINT_GROUP = "doabench.feature_kinds"
@@ -76,7 +77,10 @@ class FeatureKind:
     are; otherwise on the main frames. ``on_grid``: computed on an SRP grid, so its name carries the
     grid (``srp:16x32``). ``framed``: the recording's own samples, framed, not computed (no
     ``compute``). ``half``: make-dataset's ``--float16`` stores it in half precision.
-    ``requestable``: make-dataset ``--features`` may ask for it (srp_max comes with every srp map).
+    ``requestable``: make-dataset ``--features`` may ask for it. ``comes_with``: the kinds a dataset
+    stores beside it on the same grid (srp_max with every srp map). ``config``: its config class
+    (:mod:`doabench.features.configs`): :class:`MapConfig` for a kind on the grid,
+    :class:`FramesConfig` for one with ``own_frames``, :class:`KindConfig` (no settings) otherwise.
     ``axes(context)``: what the axes of one frame hold, for the sidecar of ``doabench features``
     (``{"axes": [...], ...}``; None: ``description`` alone says it).
     """
@@ -92,6 +96,8 @@ class FeatureKind:
     framed: bool = False
     half: bool = False
     requestable: bool = True
+    comes_with: tuple[str, ...] = ()
+    config: type[KindConfig] = KindConfig
     axes: Callable[[FrameContext], dict[str, Any]] | None = None
     description: str = ""
 
@@ -178,15 +184,15 @@ def _spectrogram_axes(c: FrameContext) -> dict[str, Any]:
 BUILTIN_KINDS: tuple[FeatureKind, ...] = (
     # mean removed and divided by the maximum: the maximum is 1, the minimum has no bound
     FeatureKind("srp", lambda c: tuple(c.resolution), high=1.0, compute=lambda stft: stft.maps, stages=("srp",),
-                on_grid=True, half=True, axes=_srp_axes, description="SRP-PHAT map on the equiangular grid"),
+                on_grid=True, half=True, comes_with=("srp_max",), config=MapConfig, axes=_srp_axes, description="SRP-PHAT map on the equiangular grid"),
     FeatureKind("srp_max", lambda c: (2,), low=0.0, high=1.0, compute=lambda stft: stft.map_maxima,
-                stages=("srp",), on_grid=True, requestable=False, axes=_srp_max_axes,
+                stages=("srp",), on_grid=True, requestable=False, config=MapConfig, axes=_srp_max_axes,
                 description="normalised elevation and azimuth of the map's maximum"),
     # PHAT-weighted: a mean of unit phasors, so |R| <= 1
     FeatureKind("gcc", _gcc_shape, low=-1.0, high=1.0, compute=lambda stft: stft.gcc, stages=("gcc",), half=True,
                 axes=_gcc_axes, description="GCC-PHAT of every mic pair"),
     FeatureKind("spectrogram", _spectrogram_shape, low=-1.0, high=1.0, compute=lambda stft: stft.spectrogram,
-                own_frames=True, half=True, axes=_spectrogram_axes, description="magnitude and phase spectrogram"),
+                own_frames=True, half=True, config=FramesConfig, axes=_spectrogram_axes, description="magnitude and phase spectrogram"),
     FeatureKind("audio", lambda c: (c.array.n_mics, c.frame_spec.window), framed=True,
                 description="the recording's samples, framed"),
 )
@@ -196,10 +202,9 @@ BUILTIN_KINDS: tuple[FeatureKind, ...] = (
 OBSERVATION_KINDS = tuple(k.name for k in BUILTIN_KINDS)
 #: The built-in kinds :class:`~doabench.features.FeatureExtractor` computes together, in its output order.
 EXTRACTOR_KINDS = tuple(k.name for k in BUILTIN_KINDS if not k.framed)
-#: Kinds that are the recording's own samples, framed, not computed by the extractor.
+#: The built-in kinds that are the recording's own samples, framed, not computed by the extractor
+#: (whether any kind is: ``feature_kind(name).framed``).
 FRAMED_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.framed)
-#: Kinds computed on an SRP grid: their names carry the grid's resolution.
-MAP_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.on_grid)
 #: What ``make-dataset --features`` requests, in the files' canonical order; an ``srp`` request
 #: stores its ``srp_max`` too, so srp_max is not requested on its own.
 DATASET_KINDS = tuple(k.name for k in BUILTIN_KINDS if k.requestable)
@@ -212,14 +217,25 @@ def _check_plugin_kind(name: str, kind: Any) -> FeatureKind:
         raise ConfigError(f"feature kind {kind.name!r} cannot be registered as {name!r}")
     if kind.name in OBSERVATION_KINDS or ":" in kind.name or not kind.name.isidentifier():
         raise ConfigError(f"feature kind name {kind.name!r} is taken or not a plain identifier")
-    if kind.compute is None or kind.framed or kind.on_grid:
-        raise ConfigError(f"feature kind {kind.name!r}: a plug-in kind brings compute() and is neither framed "
-                          "nor on the SRP grid")
+    if kind.compute is None or kind.framed:
+        raise ConfigError(f"feature kind {kind.name!r}: a plug-in kind brings compute() and is not framed")
+    check_config_class(kind)
     unknown = sorted(set(kind.stages) - set(STAGES))
     if unknown:
         raise ConfigError(f"feature kind {kind.name!r} reads unknown stage(s) {unknown}; the shared stages with "
                           f"tables are {', '.join(STAGES)}")
     return kind
+
+
+def check_config_class(kind: FeatureKind) -> None:
+    """A one-line ConfigError unless ``kind.config`` fits the kind: a :class:`MapConfig` (its grid and
+    delays) for a kind on the grid, a :class:`FramesConfig` for one with ``own_frames``."""
+    config = kind.config
+    if not (isinstance(config, type) and issubclass(config, KindConfig)):
+        raise ConfigError(f"feature kind {kind.name!r}: config must be a KindConfig class, got {config!r}")
+    if kind.on_grid != issubclass(config, MapConfig) or kind.own_frames != issubclass(config, FramesConfig):
+        raise ConfigError(f"feature kind {kind.name!r}: a kind on the SRP grid (on_grid) takes MapConfig, one on "
+                          f"its own frames (own_frames) FramesConfig, and no other kind either; got {config.__name__}")
 
 
 #: Every feature kind: the built-ins (computed by doabench), then plug-ins from the
@@ -246,6 +262,11 @@ def observation_kinds() -> tuple[str, ...]:
     return OBSERVATION_KINDS + tuple(sorted(set(FEATURE_KINDS.names()) - set(OBSERVATION_KINDS)))
 
 
+def map_kinds(kinds: Iterable[str]) -> tuple[str, ...]:
+    """The kinds among ``kinds`` computed on the SRP grid (built-in or plug-in)."""
+    return tuple(k for k in kinds if feature_kind(k).on_grid)
+
+
 def own_frame_kinds(kinds: Iterable[str]) -> tuple[str, ...]:
     """The kinds among ``kinds`` computed on the observations' second frame grid when one is given."""
     return tuple(k for k in kinds if feature_kind(k).own_frames)
@@ -264,10 +285,11 @@ def check_kinds(kinds: Iterable[str]) -> tuple[str, ...]:
 def item_name(kind: str, resolution: Sequence[int] | str | None = None) -> str:
     """Canonical name of ``kind`` on the grid ``resolution``: ``srp:16x32``, ``gcc``, ...
 
-    ``resolution`` None leaves an srp name bare (``srp``: a reader resolves it to the only stored
-    grid); the other kinds ignore it.
+    ``resolution`` None leaves a map kind's name bare (``srp``: a reader resolves it to the only
+    stored grid); kinds off the grid ignore it.
     """
-    if kind in MAP_KINDS and resolution:
+    found = FEATURE_KINDS.find(kind) if resolution else None  # other keys (vad) pass as they are
+    if found is not None and found[1].on_grid:
         return f"{kind}:{resolution if isinstance(resolution, str) else resolution_text(resolution)}"
     return kind
 
@@ -280,14 +302,14 @@ def item_names(kinds: Iterable[str], resolution: Sequence[int] | str | None = No
 def parse_item_name(name: str) -> tuple[str, tuple[int, int] | None]:
     """``"srp:16x32"`` -> ``("srp", (16, 32))``, ``"gcc"`` -> ``("gcc", None)``, ``"srp"`` -> ``("srp", None)``.
 
-    The resolution is parsed by :func:`doabench.geometry.parse_resolution` (its errors); a kind
-    outside :data:`OBSERVATION_KINDS`, or a resolution on a kind without a grid, is a ConfigError.
+    The resolution is parsed by :func:`doabench.geometry.parse_resolution` (its errors); an unknown
+    kind, or a resolution on a kind without a grid, is a ConfigError.
     """
     kind, sep, res = str(name).partition(":")
     check_kinds([kind])
     if not sep:
         return kind, None
-    if kind not in MAP_KINDS:
+    if not feature_kind(kind).on_grid:
         raise ConfigError(f"feature {kind!r} takes no resolution, got {name!r}")
     return kind, parse_resolution(res)
 

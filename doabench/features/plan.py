@@ -1,11 +1,11 @@
 """One observation pipeline: recording audio -> per-frame observations, named, shaped and spaced.
 
-An :class:`ObservationPlan` is a set of observation kinds (:data:`~doabench.features.kinds.OBSERVATION_KINDS`)
-on one array, frame grid and delay mode, with one or more SRP grids. It owns
+An :class:`ObservationPlan` is an :class:`~doabench.features.spec.ObservationSpec` (the kinds, each
+with its settings, on one frame grid) on one array, with one or more SRP grids. It owns
 
 * the per-frame shape and the Gymnasium ``spaces.Box`` of each kind (what :class:`DoaEnv` declares);
 * the extractor passes: one :class:`~doabench.features.FeatureExtractor` pass per SRP resolution,
-  gcc and spectrogram riding on the first one (they share its STFT);
+  the kinds off the grid (gcc, spectrogram, ...) riding on the first one (they share its STFT);
 * :meth:`ObservationPlan.compute`: audio ``(M, L)`` + sample VAD -> ``{name: (T, ...)}`` arrays;
 
 so that the environment, ``make-dataset``, ``doabench track``, the ONNX example input and the
@@ -22,20 +22,13 @@ import numpy as np
 from gymnasium import spaces
 
 from doabench.arrays import MicArray, get_array
-from doabench.features.kinds import (
-    DEFAULT_RESOLUTION,
-    FRAMED_KINDS,
-    DelayMode,
-    MAP_KINDS,
-    FrameContext,
-    feature_kind,
-    frame_shape_of,
-    item_name,
-)
+from doabench.features.configs import DEFAULT_RESOLUTION
+from doabench.features.kinds import DelayMode, FrameContext, feature_kind, frame_shape_of, item_name
 from doabench.framing import FrameSpec, frame_signal
 from doabench.geometry import as_grid
 
 if TYPE_CHECKING:  # torch is imported lazily (see the module docstring)
+    from doabench.features.spec import ObservationSpec
     from doabench.features.streaming import StreamingFeatureExtractor
     from doabench.features.transforms import FeatureExtractor
 
@@ -60,27 +53,24 @@ def _grid(resolution: str | Sequence[int]) -> tuple[int, int]:
 
 
 class ObservationPlan:
-    """The observations ``kinds`` of recordings made with ``array``, framed by ``frame_spec``.
+    """The observations ``spec`` of recordings made with ``array`` (usually built by
+    :meth:`ObservationSpec.plan <doabench.features.spec.ObservationSpec.plan>`).
 
-    ``resolutions``: the SRP grids ``(n_theta, n_phi)`` or ``"16x32"``; srp and srp_max are computed on each, the
-    other kinds once. Spaces and :meth:`observations` describe the first grid. ``delays``: the
-    SRP delay mode (nearest, exact). ``spectrogram_frame_spec``: the spectrogram's own frame grid
-    (None: ``frame_spec``'s).
-
-    ``kinds`` are not validated here, so that every consumer keeps its own message for a bad
-    name (:func:`~doabench.features.kinds.check_kinds` is the environment's; the extractor raises
-    its own for kinds it cannot compute).
+    ``resolutions``: the SRP grids ``(n_theta, n_phi)`` or ``"16x32"`` the kinds on the grid are
+    computed on (None: the spec's own grid); the other kinds are computed once. Spaces and
+    :meth:`observations` describe the first grid.
     """
 
-    def __init__(self, kinds: Sequence[str], array: MicArray | str, frame_spec: FrameSpec,
-                 resolutions: Sequence[str | Sequence[int]] = (DEFAULT_RESOLUTION,), delays: str = "nearest",
-                 spectrogram_frame_spec: FrameSpec | None = None) -> None:
-        self.kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
+    def __init__(self, spec: ObservationSpec, array: MicArray | str,
+                 resolutions: Sequence[str | Sequence[int]] | None = None) -> None:
+        self.spec = spec
+        self.kinds = spec.kind_names
         self.array = get_array(array)
-        self.frame_spec = frame_spec
-        self.resolutions = tuple(_grid(r) for r in resolutions) or (DEFAULT_RESOLUTION,)
-        self.delays = delays
-        self.spectrogram_frame_spec = spectrogram_frame_spec
+        self.frame_spec = spec.frames
+        grids = resolutions if resolutions else (spec.resolution or DEFAULT_RESOLUTION,)
+        self.resolutions = tuple(_grid(r) for r in grids)
+        self.delays = spec.delays or "nearest"
+        self.spectrogram_frame_spec = spec.spectrogram_frame_spec
         self._extractors: dict[tuple[bytes, tuple[str, ...], tuple[int, int]], FeatureExtractor] = {}
 
     # -- description ------------------------------------------------------------------------------
@@ -92,18 +82,18 @@ class ObservationPlan:
     @property
     def extractor_kinds(self) -> tuple[str, ...]:
         """The kinds a FeatureExtractor computes (framed kinds are not); never empty."""
-        return tuple(k for k in self.kinds if k not in FRAMED_KINDS) or VAD_ONLY_KINDS
+        return tuple(k for k in self.kinds if not feature_kind(k).framed) or VAD_ONLY_KINDS
 
     def names(self) -> list[str]:
         """Canonical name of every item :meth:`compute` returns for ``kinds``, in pass order."""
         out = [item_name(k, res) for ks, res in self.passes() for k in ks]
-        return out + [k for k in self.kinds if k in FRAMED_KINDS]
+        return out + [k for k in self.kinds if feature_kind(k).framed]
 
     def passes(self) -> list[tuple[tuple[str, ...], tuple[int, int]]]:
         """``(kinds, resolution)`` of each extractor pass: every extractor kind on the first grid,
-        then srp/srp_max on each further grid."""
+        then the kinds on the grid (srp, srp_max, a plug-in map) on each further grid."""
         first = self.extractor_kinds
-        maps = tuple(k for k in first if k in MAP_KINDS)
+        maps = tuple(k for k in first if feature_kind(k).on_grid)
         return [(first, self.resolution)] + ([(maps, r) for r in self.resolutions[1:]] if maps else [])
 
     def frame_context(self) -> FrameContext:
@@ -173,8 +163,9 @@ class ObservationPlan:
                 for key, value in feats.items():
                     # the VADs are the same in every pass: the first one's is kept
                     out.setdefault(item_name(key, res), value[0].detach().cpu().numpy())
-        if "audio" in self.kinds:
-            out["audio"] = framed_audio(audio, self.frame_spec)
+        for kind in self.kinds:
+            if feature_kind(kind).framed:  # the recording's own samples (``audio``), framed
+                out[kind] = framed_audio(audio, self.frame_spec)
         out["vad"] = out["vad"].astype(np.int64)
         return out
 

@@ -508,7 +508,7 @@ def srp_maps(task: str, episode: int, frame: int, resolutions: Sequence[tuple[in
     Returns ``maps`` ({resolution: map}), ``direction`` (true DOA (3,)), ``active`` (frame is
     voice-active), ``episode`` and ``array``."""
     from doabench.envs.env import DoaEnv
-    from doabench.features.plan import ObservationPlan
+    from doabench.features.spec import ObservationSpec
 
     env = DoaEnv(task, features=("srp",), resolution=resolutions[0], delays=delays, **source_options)
     if not 0 <= episode < env.n_episodes:
@@ -521,7 +521,7 @@ def srp_maps(task: str, episode: int, frame: int, resolutions: Sequence[tuple[in
     array = ep.array or env.array
     maps = {}
     for res in resolutions:
-        plan = ObservationPlan(("srp",), array, env.frame_spec, (res,), delays)
+        plan = ObservationSpec.of(("srp",), res, env.frame_spec, delays).plan(array)
         maps[tuple(res)] = plan.observations(ep.audio, ep.sample_vad)["srp"][frame]
     return {"maps": maps, "direction": truth["directions"][frame], "active": bool(truth["vad"][frame]),
             "episode": ep, "array": array}

@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING, Any, Iterable, Iterator
 import numpy as np
 
 from doabench.arrays import MicArray
+from doabench.features.kinds import feature_kind
 from doabench.runner.loop import check_directions, guarded, step_frame, track_frames
-from doabench.trackers.base import Tracker
+from doabench.trackers.base import Tracker, observations_of
 
 if TYPE_CHECKING:
     from doabench.recording import Recording, StreamingWebrtcVad
@@ -33,7 +34,7 @@ def track_recording(tracker: Tracker, array: MicArray, audio: np.ndarray, sample
     """Features -> tracker -> ``{"times", "directions" (T, 3), "vad" (T,)}`` for one recording, on
     the tracker's own observations (``delays``: another delay mode on purpose)."""
     spec = tracker.frame_spec
-    feats = tracker.observation_spec.with_delays(delays).plan(array).observations(audio, sample_vad, device=device)
+    feats = observations_of(tracker).with_delays(delays).plan(array).observations(audio, sample_vad, device=device)
     n = len(feats["vad"])
     guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
 
@@ -61,8 +62,10 @@ def track_stream(tracker: Tracker, array: MicArray, chunks: Iterable[Chunk], del
     from doabench.features.streaming import FrameStream
 
     spec = tracker.frame_spec
-    extractor = tracker.observation_spec.with_delays(delays).plan(array).streaming_extractor()
-    framer = FrameStream(spec) if "audio" in tracker.features else None
+    observations = observations_of(tracker)
+    extractor = observations.with_delays(delays).plan(array).streaming_extractor()
+    framed = [k for k in observations.kind_names if feature_kind(k).framed]  # the recording's samples, framed
+    framer = FrameStream(spec) if framed else None
     guarded(tracker, "reset()", lambda: tracker.reset(array, frame_spec=spec))
     directions: list[np.ndarray] = []
     parts: dict[str, list[np.ndarray]] = {}
@@ -76,8 +79,9 @@ def track_stream(tracker: Tracker, array: MicArray, chunks: Iterable[Chunk], del
             if framer is not None:
                 a = torch.from_numpy(np.ascontiguousarray(audio, dtype=np.float32))[None]
                 seg = framer.push(a, torch.ones((1, a.shape[-1]), dtype=torch.bool))
-                feats["audio"] = (np.zeros((0, a.shape[1], spec.window), np.float32) if seg is None else
-                                  framed_audio(seg[0][0].numpy(), spec))
+                frames = (np.zeros((0, a.shape[1], spec.window), np.float32) if seg is None else
+                          framed_audio(seg[0][0].numpy(), spec))
+                feats.update({k: frames for k in framed})
             feats["vad"] = np.asarray(feats["vad"]).astype(np.int64)
             vads.append(feats["vad"])
             if tracker.causal:

@@ -1,7 +1,9 @@
 """The public tracker API.
 
 A tracker turns per-frame features into one direction estimate per frame. Subclass
-:class:`Tracker`, set the class attributes, implement :meth:`reset` and :meth:`step` (causal) or
+:class:`Tracker`, declare what it reads as one :class:`~doabench.ObservationSpec`
+(``observation_spec``: a class attribute, or an instance attribute set in ``__init__`` where it
+depends on the tracker's options or weights), implement :meth:`reset` and :meth:`step` (causal) or
 :meth:`track` (offline, whole episode), and register it::
 
     import numpy as np
@@ -9,7 +11,7 @@ A tracker turns per-frame features into one direction estimate per frame. Subcla
 
     @doabench.register_tracker("my-tracker")
     class MyTracker(doabench.Tracker):
-        features = ("srp",)          # observation keys it reads
+        observation_spec = doabench.ObservationSpec.of(("srp",), "16x32")  # what it reads
         causal = True
 
         def reset(self, array, **context):   # context: see ResetContext
@@ -27,8 +29,8 @@ runner refuses anything else in one line. A "no source" frame counts a fixed 90 
 frame metrics, and on LOCATA tasks the stamps that take it have no active track
 (docs/adding-a-tracker.md, "Saying no source").
 
-Observations are dicts of numpy arrays for one frame, with the keys a tracker lists in
-``features`` plus ``vad`` (1 if the frame is voice-active, else 0):
+Observations are dicts of numpy arrays for one frame, with the keys of the kinds its
+``observation_spec`` lists (:attr:`Tracker.features`) plus ``vad`` (1 if the frame is voice-active, else 0):
 
 * ``srp``: ``(n_theta, n_phi)`` SRP-PHAT map, mean removed, divided by its maximum, zero in silent frames
 * ``srp_max``: ``(2,)`` normalised elevation and azimuth of the map maximum in ``[0, 1]``
@@ -41,7 +43,7 @@ keyword arguments of the constructor: the part after the colon is passed as ``sp
 """
 from __future__ import annotations
 
-from typing import Any, ClassVar, Mapping, Sequence, TypedDict
+from typing import Any, ClassVar, Mapping, TypedDict
 
 import numpy as np
 
@@ -50,6 +52,10 @@ from doabench.geometry import resolution_text
 from doabench.arrays import MicArray
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
+
+#: What a tracker reads from its ``observation_spec`` (read-only views of it): a subclass that
+#: assigns one of them a value of its own is refused (:meth:`Tracker.__init_subclass__`).
+SPEC_VIEWS = ("features", "resolution", "frame_spec", "spectrogram_frame_spec")
 
 
 class ResetContext(TypedDict, total=False):
@@ -66,13 +72,28 @@ class ResetContext(TypedDict, total=False):
     task: str                # id of the task the episode comes from
 
 
+def observations_of(tracker: "Tracker") -> ObservationSpec:
+    """What ``tracker`` reads: its ``observation_spec``, as the runner, ``track``, the trainer and
+    the export read it; a one-line ConfigError naming the tracker when it declares none or one out
+    of bounds (a plug-in's property may build it only when asked)."""
+    try:
+        declared = tracker.observation_spec
+    except ConfigError as exc:
+        raise ConfigError(f"tracker {tracker.name!r}: {exc}") from None
+    if not isinstance(declared, ObservationSpec):
+        raise ConfigError(f"tracker {tracker.name!r}: observation_spec must be a doabench.ObservationSpec, "
+                          f"got {type(declared).__name__}")
+    return declared
+
+
 def resolve_delays(tracker: "Tracker", requested: str | None) -> tuple[str, str | None]:
     """The SRP delay mode a run uses and, when it is not the one the tracker was trained on, that
-    trained mode: ``requested`` None (no ``--delays``) takes the trained mode (``nearest`` for a
-    tracker trained on none); an explicit request wins, on purpose, and the results say so."""
+    trained mode: ``requested`` None (no ``--delays``) takes the trained mode (else the delays of
+    the tracker's ``observation_spec``, ``nearest`` where it reads no map); an explicit request
+    wins, on purpose, and the results say so."""
     trained = tracker.trained_delays
     if requested is None:
-        return trained or "nearest", None
+        return trained or observations_of(tracker).delays or "nearest", None
     return requested, trained if trained not in (None, requested) else None
 
 
@@ -86,27 +107,50 @@ class Tracker:
     version: ClassVar[str] = "1"
     #: causal trackers are run frame by frame with :meth:`step`; others with :meth:`track`
     causal: ClassVar[bool] = True
-    #: observation keys the tracker reads (``srp``, ``srp_max``, ``gcc``, ``spectrogram``)
-    features: ClassVar[Sequence[str]] = ("srp",)
+    #: what it reads, as one value: its kinds (``srp``, ``srp_max``, ``gcc``, ``spectrogram``,
+    #: ``audio`` or a plug-in's), each with its settings, on its frames. The environment, the
+    #: trainer, ``doabench track``, results and the ONNX export take exactly this value (unless a
+    #: user asks for other delays on purpose). A subclass sets it as a class attribute, or as an
+    #: instance attribute in ``__init__`` where it depends on options or weights (a learned tracker
+    #: takes its weights' own).
+    observation_spec: ObservationSpec = ObservationSpec.of(("srp",))
     #: the spec after the colon (``name:16x32``) is the SRP map resolution, so the canonical id
     #: names the resolution the tracker runs at (``name`` alone is ``name:16x32``):
     #: :func:`doabench.trackers.registry.canonical_tracker`
     resolution_in_id: ClassVar[bool] = False
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        declared = cls.__dict__.get("observation_spec")
+        if declared is not None and not isinstance(declared, (ObservationSpec, property)):
+            raise ConfigError(f"tracker class {cls.__name__}: observation_spec must be a doabench.ObservationSpec "
+                              f"(ObservationSpec.of(kinds, resolution, frame_spec) builds one)")
+        own = [name for name in SPEC_VIEWS if name in cls.__dict__ and not isinstance(cls.__dict__[name], property)]
+        if own:
+            raise ConfigError(f"tracker class {cls.__name__} sets {', '.join(own)}: declare what it reads as one "
+                              "observation_spec = doabench.ObservationSpec.of(kinds, resolution, frame_spec); "
+                              f"{', '.join(own)} are read from it")
+
     def __init__(self, spec: str | None = None, **options: Any) -> None:
         self.spec = spec
         self.options = dict(options)
 
-    # -- what the environment needs to know -------------------------------------------------
+    # -- what the environment needs to know (views of observation_spec) -----------------------
+    @property
+    def features(self) -> tuple[str, ...]:
+        """The observation keys it reads: the names of its ``observation_spec``'s kinds."""
+        return self.observation_spec.kind_names
+
     @property
     def resolution(self) -> tuple[int, int] | None:
-        """``(n_theta, n_phi)`` of the SRP maps it needs, or None if it reads no map."""
-        return None
+        """``(n_theta, n_phi)`` of the SRP maps it reads (its ``observation_spec``'s grid), or None
+        if it reads no map."""
+        return self.observation_spec.resolution
 
     @property
     def frame_spec(self) -> FrameSpec:
-        """Window, hop and sample rate of the features it needs."""
-        return FrameSpec()
+        """Window, hop and sample rate of the observations it reads (its ``observation_spec``'s)."""
+        return self.observation_spec.frames
 
     @property
     def trained_delays(self) -> str | None:
@@ -114,18 +158,6 @@ class Tracker:
         it was trained on none (a classical tracker, random weights): a run uses this mode unless
         the user asks for another on purpose (:func:`resolve_delays`)."""
         return None
-
-    @property
-    def observation_spec(self) -> ObservationSpec:
-        """What it reads, as one value: its ``features`` on its ``resolution`` (16x32 when it reads no
-        map), its ``frame_spec``, the delays its weights were trained on (``nearest`` when none) and
-        a ``spectrogram_frame_spec`` when it declares one. The environment, the trainer and
-        ``doabench track`` compute exactly this unless the user asks for other delays on purpose."""
-        try:
-            return ObservationSpec.of(self.features, self.resolution, self.frame_spec, self.trained_delays,
-                                      getattr(self, "spectrogram_frame_spec", None))
-        except ConfigError as exc:  # what it declares is out of bounds: the message names the tracker
-            raise ConfigError(f"tracker {self.name!r}: {exc}") from None
 
     @property
     def receptive_field_frames(self) -> int | None:

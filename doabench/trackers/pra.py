@@ -15,6 +15,7 @@ import numpy as np
 
 from doabench.arrays import MicArray
 from doabench.features.kinds import DEFAULT_RESOLUTION
+from doabench.features.spec import ObservationSpec
 from doabench.framing import frame_signal
 from doabench.geometry import SPEED_OF_SOUND, angles_to_unit, grid_angles, parse_resolution
 from doabench.trackers.base import Tracker
@@ -22,7 +23,7 @@ from doabench.trackers.registry import register_tracker
 
 
 class _PyroomacousticsTracker(Tracker):
-    features = ("audio",)
+    observation_spec = ObservationSpec.of(("audio",))  # the recording's frames: it searches its own grid
     causal = True
     algorithm = ""
     default_band: tuple[float, float | None] = (300.0, 3500.0)
@@ -38,6 +39,7 @@ class _PyroomacousticsTracker(Tracker):
 
     @property
     def resolution(self) -> tuple[int, int]:
+        """Its own DOA search grid (it reads the recording's frames, not maps)."""
         return self._resolution
 
     def reset(self, array: MicArray, **context: Any) -> None:

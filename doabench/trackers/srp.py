@@ -8,6 +8,7 @@ import numpy as np
 from doabench.arrays import MicArray
 from doabench.errors import ConfigError
 from doabench.features.kinds import DEFAULT_RESOLUTION
+from doabench.features.spec import ObservationSpec
 from doabench.geometry import NO_SOURCE, grid_unit_vectors, parse_resolution
 from doabench.trackers.base import Tracker
 from doabench.trackers.registry import register_tracker
@@ -16,7 +17,7 @@ _INITIAL_DIRECTION = np.array([1.0, 0.0, 0.0])  # before the first active frame:
 
 
 class _SrpGridTracker(Tracker):
-    features = ("srp",)
+    observation_spec = ObservationSpec.of(("srp",))
     causal = True
     resolution_in_id = True
 
@@ -24,11 +25,9 @@ class _SrpGridTracker(Tracker):
         super().__init__(spec, **options)
         text = resolution or spec
         self._resolution = parse_resolution(text) if text else DEFAULT_RESOLUTION
+        #: its maps on the grid its id names (``srp-max:8x16``)
+        self.observation_spec = ObservationSpec.of(("srp",), self._resolution)
         self._grid: np.ndarray | None = None
-
-    @property
-    def resolution(self) -> tuple[int, int]:
-        return self._resolution
 
     def reset(self, array: MicArray, **context: Any) -> None:
         self._grid = grid_unit_vectors(*self._resolution, planar=bool(array.planar)).reshape(-1, 3)

@@ -77,14 +77,14 @@ def leading_run(indices: list[int]) -> list[int]:
     return list(range(n))
 
 
-def default_features(tracker: Any, spec: TaskSpec, frame_spec: FrameSpec) -> FeatureFn:
+def default_features(tracker: Any, spec: TaskSpec) -> FeatureFn:
     """Batched features ``(B, M, L)`` audio -> ``{kind: (B, T, ...)}`` tensors on the audio's
     device: the extractor of the tracker's :class:`~doabench.features.plan.ObservationPlan` (the
     one the environment and make-dataset use), asked for the tracker's kinds as they are so that
     a kind it cannot compute gets the extractor's own error."""
     from doabench.arrays import get_array
 
-    plan = training_observations(tracker, frame_spec).plan(get_array(spec.array))
+    plan = training_observations(tracker).plan(get_array(spec.array))
     extractor = plan.extractor(kinds=tuple(tracker.features))
     return lambda audio, vad: extractor(audio, vad)
 

@@ -15,13 +15,8 @@ from doabench.training.protocol import check_trainable, training_observations
 
 
 def _observations(tracker: Any) -> dict[str, Any]:
-    """``{"observations": spec}`` of what the tracker trained on; empty for a network trained on
-    features doabench does not know (a kind nobody registered, given to the Trainer as its own
-    feature function): no spec describes those."""
-    try:
-        return {"observations": training_observations(tracker, tracker.frame_spec).to_dict()}
-    except ConfigError:
-        return {}
+    """``{"observations": spec}``: what the tracker trained on, stored whole."""
+    return {"observations": training_observations(tracker).to_dict()}
 
 
 def training_metadata(state: dict[str, Any], tracker: Any, which: str, tracker_id: str | None = None) -> dict[str, Any]:

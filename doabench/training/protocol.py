@@ -3,44 +3,49 @@
 doabench never imports a model package: ``doabench train --tracker cross3d:8x16`` builds the
 tracker with :func:`doabench.make_tracker` and trains it through this small protocol::
 
-    tracker.features        # observation keys it reads, e.g. ("srp", "srp_max")
-    tracker.resolution      # (n_theta, n_phi) of the SRP maps, or None
-    tracker.frame_spec      # FrameSpec of its features (window, hop, fs)
+    tracker.observation_spec    # what it reads, one ObservationSpec (kinds with their settings, frames)
+    tracker.features        # its kinds' names, e.g. ("srp", "srp_max") (a doabench.Tracker derives
+    tracker.resolution      # these three from observation_spec: the SRP grid or None,
+    tracker.frame_spec      # and the frames)
     tracker.network         # the torch.nn.Module being trained
     tracker.network_input(features)   # dict of (B, T, ...) tensors -> the network's input tensor
     tracker.network(x)      # -> (B, T, 3) direction vectors (not necessarily unit length)
     tracker.save_weights(path, metadata)   # safetensors file; metadata["training"] is the
                                            # training record (see doabench.training.export)
 
-Optional (read through :func:`training_observations` and :func:`training_defaults`, nowhere else):
+``tracker.observation_spec`` is read through :func:`training_observations` and nowhere else: the
+trainer computes, and the weights file records, exactly that value. A network reading a kind of
+its own registers the kind (:func:`doabench.features.register_feature_kind`), so that its spec
+can name it, even when the Trainer is given its own feature function.
 
-* ``tracker.observation_spec``: what it reads, as one :class:`~doabench.features.spec.ObservationSpec`
-  (every :class:`doabench.Tracker` declares it: its features, resolution, frames, the SRP delays of
-  its weights, its spectrogram's own frames); a trainable network that is not a Tracker reads its
-  ``features`` on nearest delays;
+Optional (read through :func:`training_defaults`, nowhere else):
+
 * ``tracker.training_defaults`` (dict) with recipe overrides the paper gives for that model, e.g.
   ``{"t60": (0.0, 0.3)}`` for its spectrogram models (section V-A: the baselines' spectrogram
   trackers declare it).
 """
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
 
 import torch
 
 from doabench.errors import ConfigError
 from doabench.features.spec import ObservationSpec
+from doabench.trackers.base import observations_of
 from doabench.framing import FrameSpec
 
-REQUIRED_ATTRIBUTES = ("network", "network_input", "save_weights", "features", "frame_spec")
+REQUIRED_ATTRIBUTES = ("network", "network_input", "save_weights", "observation_spec", "features", "frame_spec")
 
 
 @runtime_checkable
 class TrainableTracker(Protocol):
     """A tracker with a trainable network (see the module docstring)."""
 
-    features: Sequence[str]
+    observation_spec: ObservationSpec
+
+    @property
+    def features(self) -> Sequence[str]: ...
 
     @property
     def resolution(self) -> tuple[int, int] | None: ...
@@ -72,13 +77,10 @@ def check_trainable(tracker: Any, name: str) -> TrainableTracker:
     return tracker
 
 
-def training_observations(tracker: Any, frame_spec: FrameSpec) -> ObservationSpec:
+def training_observations(tracker: Any) -> ObservationSpec:
     """What a learned tracker trains on, as one value: the :attr:`~doabench.Tracker.observation_spec`
-    it declares, on the run's ``frame_spec``."""
-    declared = getattr(tracker, "observation_spec", None)
-    if not isinstance(declared, ObservationSpec):
-        declared = ObservationSpec.of(tuple(tracker.features), tracker.resolution, frame_spec)
-    return replace(declared, frame_spec=frame_spec)
+    it declares, as it is; a one-line ConfigError when it declares none."""
+    return observations_of(tracker)
 
 
 def training_defaults(tracker: Any) -> dict[str, Any]:

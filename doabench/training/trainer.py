@@ -140,7 +140,7 @@ class Trainer:
         self.policy.place(self.network)
         self.train_forward = torch.compile(self.network) if options.compile else self.network
         self.frame_spec = self.tracker.frame_spec
-        self.feature_fn = feature_fn or default_features(self.tracker, self.spec, self.frame_spec)
+        self.feature_fn = feature_fn or default_features(self.tracker, self.spec)
         self.optimizer = torch.optim.Adam(self.network.parameters(), lr=recipe.phases[0].lr)
         requested = recipe.num_workers if options.workers is None else options.workers
         workers = default_workers(requested) if options.workers is None else max(0, int(options.workers))

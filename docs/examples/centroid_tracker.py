@@ -12,16 +12,13 @@ from doabench.geometry import grid_unit_vectors
 
 @doabench.register_tracker("srp-centroid")
 class CentroidTracker(doabench.Tracker):
-    features = ("srp",)  # the observation keys this tracker reads
+    # what it reads, as one value: SRP-PHAT maps on the 16x32 grid, on the default frames
+    observation_spec = doabench.ObservationSpec.of(("srp",), "16x32")
     causal = True
 
     def __init__(self, spec=None, top=5, **options):
         super().__init__(spec, **options)
         self.top = int(top)
-
-    @property
-    def resolution(self):
-        return (16, 32)  # the SRP grid the environment must compute
 
     def reset(self, array, **context):
         self.grid = grid_unit_vectors(*self.resolution, planar=array.planar).reshape(-1, 3)

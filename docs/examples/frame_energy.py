@@ -2,7 +2,8 @@
 
 Register it from Python (``register_feature_kind(FRAME_ENERGY)``) or declare it in your package's
 ``pyproject.toml``, and every layer offers it: ``gymnasium.make(..., features=("srp", "frame_energy"))``,
-a tracker's ``features``, ``doabench track`` and training.
+a tracker's ``observation_spec`` (``ObservationSpec.of(("frame_energy",))``), ``doabench track`` and
+training.
 
     [project.entry-points."doabench.feature_kinds"]
     frame_energy = "frame_energy:FRAME_ENERGY"
