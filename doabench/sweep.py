@@ -10,6 +10,7 @@ results file as it arrives. A run that fails is reported and the others go on.
 """
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,14 +55,13 @@ def finished_results(out: Path, spec: RunSpec, episodes: int | None, tracker_ver
     """The results file of a finished run of ``spec`` in ``out``, else None (the run is (re)done):
     the same configuration (task and version, tracker, options, weights, delays), as many episodes,
     and the same ``tracker_version`` (``Tracker.version``) when one is given."""
-    from doabench.results.schema import load_results
     from doabench.results.writer import results_configuration
 
     path = spec.results_path(out)
     if not path.is_file() or spec.journal_path(out).exists():
         return None
     try:
-        r = load_results(path)  # a file of an older schema read as the current one
+        r = json.loads(path.read_text())
         total = int(r["task"]["episodes_total"])
         want = total if episodes is None else min(int(episodes), total)
         same = (results_configuration(r) == spec.configuration() and int(r["task"]["episodes_run"]) == want
@@ -106,30 +106,32 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
     from doabench.ray_support import check_engine, require_ray
     from doabench.results.writer import check_overwrite
     from doabench.envs.selection import select_episodes
-    from doabench.trackers.registry import make_tracker
+    from doabench.trackers.registry import make_tracker, tracker_ref
 
     check_engine(engine)
     if engine == "ray":
         require_ray()
     trackers, tasks = parse_list(trackers, "trackers"), parse_list(tasks, "tasks")
     options = dict(tracker_options or {})
-    task_ids = [task_reference(get_task_spec(t)) for t in tasks]  # unknown ids: one line, before any work
+    # Each id is looked up once, here (unknown ids: one line, before any work); the values go on.
+    task_specs = {task_reference(spec): spec for spec in map(get_task_spec, tasks)}
+    refs = [tracker_ref(text) for text in trackers]
     # One model, one run: aliases (cross3d, cross3d:16x32) resolve to one canonical id and options
     # (RunSpec.build), each on the observations it was trained on unless --delays asks for others.
     specs: dict[tuple[str, str], RunSpec] = {}
     versions: dict[str, str] = {}
     order: list[str] = []
-    for text in trackers:
-        instance = make_tracker(text, **options)
-        for task_id in task_ids:
-            spec, _ = RunSpec.build(text, task_id, options, delays, instance=instance, env_options=env_options)
+    for ref in refs:
+        instance = make_tracker(ref, **options)
+        for task_id, task_spec in task_specs.items():
+            spec, _ = RunSpec.build(ref, task_spec, options, delays, instance=instance, env_options=env_options)
             specs.setdefault((spec.tracker, task_id), spec)
         versions[spec.tracker] = instance.version
         order.append(spec.tracker)
     trackers = list(dict.fromkeys(order))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = [SweepRun(tracker, task) for task in task_ids for tracker in trackers]
+    runs = [SweepRun(tracker, task) for task in task_specs for tracker in trackers]
     todo = []
     for run in runs:
         spec = specs[(run.tracker, run.task)]
@@ -139,7 +141,7 @@ def sweep(trackers: str | Sequence[str], tasks: str | Sequence[str], out: str | 
             log(f"{run.tracker} on {run.task}: already done ({path.name})")
             continue
         try:  # refuse to replace another configuration's file, or drop its episodes, now, not after the run
-            task = get_task_spec(spec.task_ref)
+            task = spec.resolved_task()
             def taken(total: int, task: Any = task) -> Any:  # the episodes this run takes of a task of `total`
                 return select_episodes(task, total, episodes)[0]
 

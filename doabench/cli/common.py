@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 if TYPE_CHECKING:
     from doabench.trackers.base import Tracker
+    from doabench.trackers.registry import TrackerRef
 
 
 def add_tracker_options(p: argparse.ArgumentParser, required: bool = True, default: str | None = None,
@@ -21,7 +22,7 @@ def add_tracker_options(p: argparse.ArgumentParser, required: bool = True, defau
                    help="option passed to the tracker's constructor (repeatable), e.g. weights=FILE")
 
 
-def make_checked_tracker(tracker_id: str, options: dict[str, Any]) -> Tracker:
+def make_checked_tracker(tracker_id: str | TrackerRef, options: dict[str, Any]) -> Tracker:
     """The tracker a command is about to run or export, refused with one line (exit 2) when it is a
     learned model without trained weights and ``weights=random`` was not given.
 

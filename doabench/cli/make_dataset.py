@@ -46,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     from doabench.datasets.generate import make_dataset
     from doabench.datasets.schema import parse_shard
+    from doabench.envs.registry import get_task_spec
 
     from doabench.errors import ConfigError
 
@@ -59,7 +60,8 @@ def main(args: argparse.Namespace) -> int:
     from doabench.cli.common import set_interrupt_note
 
     set_interrupt_note(args, lambda: _kept(args))
-    result = make_dataset(args.task, args.out, episodes=args.episodes, features=args.features,
+    task = get_task_spec(args.task)  # looked up once, here; the spec goes on
+    result = make_dataset(task, args.out, episodes=args.episodes, features=args.features,
                           shard=parse_shard(args.shard), workers=workers, float16=args.float16,
                           sample_vad=args.sample_vad, compression=args.compression, delays=args.delays,
                           device=args.device, backend=backend, progress=not args.quiet, engine=args.engine,

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -57,20 +56,20 @@ def main(args: argparse.Namespace) -> int:
                                          write_results)
     from doabench.runner import RunSpec
     from doabench.envs.selection import parse_cells, select_episodes
-    from doabench.trackers.registry import parse_options
+    from doabench.trackers.registry import parse_options, tracker_ref
 
     check_output_folder(args.out)  # before the work, not after it
     use_threads(args)
     options = parse_options(args.tracker_opt)
-    tracker = make_checked_tracker(args.tracker, options)  # before any file or folder is made
+    ref = tracker_ref(args.tracker)  # the ids are looked up once, here, and passed on as values
+    task = get_task_spec(args.task)
+    tracker = make_checked_tracker(ref, options)  # before any file or folder is made
     # One model, one name: aliases (cross3d = cross3d:16x32, default-valued options) resolve to
     # the canonical id and options before the file is named (RunSpec.build).
-    spec, tracker = RunSpec.build(tracker, args.task, options, args.delays, env_options=corpus_kwargs(args))
-    spec = dataclasses.replace(spec, given_id=args.tracker if args.tracker != spec.tracker else None)
+    spec, tracker = RunSpec.build(ref, task, options, args.delays, instance=tracker, env_options=corpus_kwargs(args))
     if spec.trained_delays is not None:
         print(f"note: {spec.tracker} was trained on {spec.trained_delays} SRP delays; running with --delays "
               f"{spec.delays} as asked (the results record both)", file=sys.stderr)
-    task = get_task_spec(spec.task_ref)
     if args.vad and "vad" not in kind_options(task_kind(task.kind, task.id)):
         raise ConfigError(f"--vad applies to LOCATA tasks; task {spec.task!r} is {task.kind} (its VAD is the scene's)")
     out = Path(args.out)

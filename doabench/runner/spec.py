@@ -17,11 +17,12 @@ from typing import Any, Mapping, Sequence
 
 from doabench.envs.registry import get_task_spec
 from doabench.envs.sources import task_identity
+from doabench.envs.spec import TaskSpec
 from doabench.results.writer import configuration, results_stem
 from doabench.runner.journal import run_lock
 from doabench.runner.loop import Progress, execute_spec
 from doabench.trackers.base import Tracker, resolve_delays
-from doabench.trackers.registry import canonical_tracker, make_tracker
+from doabench.trackers.registry import TrackerRef, canonical_ref, make_tracker, tracker_ref
 
 
 @dataclass(frozen=True)
@@ -30,7 +31,9 @@ class RunSpec:
     ``delays`` the mode the run uses; ``trained_delays`` is set only when that mode is not the one
     the weights were trained on (asked for on purpose), ``given_id`` only when the user typed an
     alias of ``tracker``. ``task_options``: the run-time options of the task that are part of the
-    identity (``{}`` on the task's defaults)."""
+    identity (``{}`` on the task's defaults). ``task_spec`` and ``tracker_ref`` are the task and the
+    canonical tracker id resolved (by :meth:`build`), carried so that nothing looks them up again,
+    in this process or in a worker the spec is sent to; they are not part of the identity."""
 
     task: str
     task_version: int
@@ -43,32 +46,41 @@ class RunSpec:
     given_id: str | None = None
     task_options: Mapping[str, Any] = field(default_factory=dict)
     weights_name: str | None = None
+    task_spec: TaskSpec | None = field(default=None, compare=False, repr=False)
+    tracker_ref: TrackerRef | None = field(default=None, compare=False, repr=False)
 
     @classmethod
-    def build(cls, tracker: str | Tracker, task: str, options: Mapping[str, Any] | None = None,
+    def build(cls, tracker: str | TrackerRef | Tracker, task: str | TaskSpec, options: Mapping[str, Any] | None = None,
               delays: str | None = None, instance: Tracker | None = None,
               env_options: Mapping[str, Any] | None = None) -> tuple["RunSpec", Tracker]:
-        """The spec of running ``tracker`` (its ``--tracker`` text, or an instance) with ``options``
-        on ``task`` with the run-time ``env_options`` (corpus roots, ``backend``, ``vad``, ...), and
-        the tracker instance (``instance``, or built here from the text).
-        ``delays`` None: the mode the tracker was trained on."""
+        """The spec of running ``tracker`` (its ``--tracker`` text or :class:`TrackerRef`, or an
+        instance) with ``options`` on ``task`` (an id or its spec) with the run-time ``env_options``
+        (corpus roots, ``backend``, ``vad``, ...), and the tracker instance (``instance``, or built
+        here). ``delays`` None: the mode the tracker was trained on."""
         options = dict(options or {})
-        if isinstance(tracker, str):
-            text, instance = tracker, instance if instance is not None else make_tracker(tracker, **options)
+        ref: TrackerRef | None = None
+        if isinstance(tracker, (str, TrackerRef)):
+            ref = tracker_ref(tracker)
+            text, instance = ref.text, instance if instance is not None else make_tracker(ref, **options)
         else:  # an instance: its id with the spec it was built with (a plug-in's ``module:Class:32x64``)
             spec_text = getattr(tracker, "spec", None)
             text, instance = (f"{tracker.name}:{spec_text}" if spec_text else tracker.name), tracker
         try:  # aliases name one model (doabench.trackers.registry.canonical_tracker)
-            tracker_id, options = canonical_tracker(text, options, instance)
+            canonical, options = canonical_ref(ref or text, options, instance)
+            tracker_id, ref = canonical.text, canonical
         except Exception:  # an instance of an unregistered class keeps its own name
-            tracker_id = text
+            tracker_id, ref = text, None
         used, trained = resolve_delays(instance, delays)
         spec = get_task_spec(task)
         return cls(task=spec.id, task_version=spec.version, tracker=tracker_id, options=options,
                    weights_hash=instance.weights_hash(), delays=used, requested_delays=delays,
                    trained_delays=trained, given_id=text if text != tracker_id else None,
                    task_options=task_identity(spec, dict(env_options or {})),
-                   weights_name=instance.weights_name), instance
+                   weights_name=instance.weights_name, task_spec=spec, tracker_ref=ref), instance
+
+    def resolved_task(self) -> TaskSpec:
+        """This run's task spec: the one :meth:`build` resolved, else looked up by :attr:`task_ref`."""
+        return self.task_spec if self.task_spec is not None else get_task_spec(self.task_ref)
 
     @property
     def task_ref(self) -> str:
@@ -93,7 +105,7 @@ class RunSpec:
     def make_tracker(self) -> Tracker:
         """The tracker of this spec, built again from its canonical id and options (what a worker
         process that received only the spec runs)."""
-        return make_tracker(self.tracker, **dict(self.options))
+        return make_tracker(self.tracker_ref or self.tracker, **dict(self.options))
 
     def journal_path(self, out: str | Path) -> Path:
         """The resume journal of this run in ``out`` (locked while the run goes)."""

@@ -8,12 +8,16 @@
 
 Third-party packages register through the ``doabench.trackers`` entry-point group
 (``name = "package.module:Class"``) or by calling :func:`register_tracker` at import time.
+
+A text is looked up once, where it is typed (:func:`tracker_ref`), and the :class:`TrackerRef`
+value is passed on: :func:`make_tracker` and :func:`canonical_tracker` take either.
 """
 from __future__ import annotations
 
 import difflib
 import importlib
 import importlib.util
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping, TypeVar, overload
 
 from doabench.errors import ConfigError, DoabenchError, NotFoundError, TrackerError, one_line
@@ -93,19 +97,46 @@ def _module_exists(name: str) -> bool:
         return False
 
 
-def resolve_tracker(text: str) -> tuple[type[Tracker], str | None, str]:
-    """Parse a ``--tracker`` value into (class, spec, id)."""
+@dataclass(frozen=True)
+class TrackerRef:
+    """A ``--tracker`` text resolved: ``cls`` the class it names, ``spec`` the part after the id
+    (passed to the constructor), ``name`` the tracker's id, ``base`` the id as its canonical form
+    starts (``name`` for a registered class, ``module:Class`` for a class loaded by its path)."""
+
+    text: str
+    cls: type[Tracker]
+    spec: str | None
+    name: str
+    base: str
+
+    def with_spec(self, spec: str | None) -> "TrackerRef":
+        """The same class with another spec: what resolving ``base[:spec]`` gives, without a lookup."""
+        return TrackerRef(f"{self.base}:{spec}" if spec else self.base, self.cls, spec or None, self.name, self.base)
+
+
+def tracker_ref(text: str | TrackerRef) -> TrackerRef:
+    """Resolve a ``--tracker`` text (a TrackerRef is returned as it is); an unknown id is one line."""
+    if isinstance(text, TrackerRef):
+        return text
     head, sep, rest = text.partition(":")
     found = TRACKERS.find(head)  # loads this id's entry point only: other plug-ins (and torch) need not load
     if found is not None:
-        return found[1], rest or None, found[0]
+        return TrackerRef(text, found[1], rest or None, found[0], found[0])
     attr_text = rest.partition(":")[0]
     looks_like_class = attr_text.isidentifier() and attr_text[:1].isupper()
     if sep and ("." in head or looks_like_class or _module_exists(head)):
         attr, _, spec = rest.partition(":")
         cls = _import_class(f"{head}:{attr}")
-        return cls, spec or None, cls.name or f"{head}:{attr}"
+        # a class loaded by its path keeps the path in its canonical id: the id must load it again
+        base = cls.name if cls.name and TRACKERS.registered().get(cls.name) is cls else f"{head}:{attr}"
+        return TrackerRef(text, cls, spec or None, cls.name or f"{head}:{attr}", base)
     raise TRACKERS.unknown(head)
+
+
+def resolve_tracker(text: str | TrackerRef) -> tuple[type[Tracker], str | None, str]:
+    """Parse a ``--tracker`` value into (class, spec, id) (:func:`tracker_ref` as a tuple)."""
+    ref = tracker_ref(text)
+    return ref.cls, ref.spec, ref.name
 
 
 def parse_options(pairs: list[str] | None) -> dict[str, Any]:
@@ -131,7 +162,7 @@ def _parse_value(value: str) -> Any:
     return value
 
 
-def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
+def canonical_tracker(text: str | TrackerRef, options: Mapping[str, Any] | None = None,
                       tracker: Tracker | None = None) -> tuple[str, dict[str, Any]]:
     """The one id and options of a tracker configuration, so that aliases name one model: one
     results file name, one leaderboard row.
@@ -149,21 +180,27 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
     ``tracker``: the instance built from ``text`` and ``options`` (built here when None); which
     weights it runs is its own answer (its weights name, its plain weights, whether it loaded its
     default), read from it alone."""
+    ref, options = canonical_ref(text, options, tracker)
+    return ref.text, options
+
+
+def canonical_ref(text: str | TrackerRef, options: Mapping[str, Any] | None = None,
+                  tracker: Tracker | None = None) -> tuple[TrackerRef, dict[str, Any]]:
+    """:func:`canonical_tracker` with the canonical id as a :class:`TrackerRef` (``.text`` is the
+    id): what builds the same tracker again without a lookup."""
     import inspect
 
     options = dict(options or {})
-    cls, spec, name = resolve_tracker(text)
-    if TRACKERS.registered().get(name) is not cls:  # a class loaded by its path keeps the path: the id must load it again
-        head, _, rest = text.partition(":")
-        name = f"{head}:{rest.partition(':')[0]}"
+    ref = tracker_ref(text)
+    cls, spec = ref.cls, ref.spec
     if tracker is None:
-        tracker = make_tracker(text, **options)
+        tracker = make_tracker(ref, **options)
     resolution = tracker.resolution
     if getattr(tracker, "resolution_in_id", False) and resolution is not None:
-        canonical = f"{name}:{resolution[0]}x{resolution[1]}"
+        canonical = ref.with_spec(f"{resolution[0]}x{resolution[1]}")
         options.pop("resolution", None)
     else:
-        canonical = f"{name}:{spec}" if spec else name
+        canonical = ref.with_spec(spec)
     try:
         params: Mapping[str, inspect.Parameter] = inspect.signature(cls).parameters
     except (TypeError, ValueError):
@@ -185,9 +222,10 @@ def canonical_tracker(text: str, options: Mapping[str, Any] | None = None,
     return canonical, options
 
 
-def make_tracker(text: str, **options: Any) -> Tracker:
-    """Instantiate a tracker from its ``--tracker`` text and options."""
-    cls, spec, name = resolve_tracker(text)
+def make_tracker(text: str | TrackerRef, **options: Any) -> Tracker:
+    """Instantiate a tracker from its ``--tracker`` text (or its :class:`TrackerRef`) and options."""
+    ref = tracker_ref(text)
+    cls, spec, name = ref.cls, ref.spec, ref.name
     try:
         tracker = cls(spec=spec, **options)
     except TypeError as exc:
