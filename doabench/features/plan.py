@@ -28,7 +28,6 @@ from doabench.framing import FrameSpec, frame_signal
 from doabench.geometry import as_grid
 
 if TYPE_CHECKING:  # torch is imported lazily (see the module docstring)
-    from doabench.features.spec import ObservationSpec
     from doabench.features.streaming import StreamingFeatureExtractor
     from doabench.features.transforms import FeatureExtractor
 
@@ -61,7 +60,8 @@ class ObservationPlan:
     :meth:`observations` describe the first grid.
     """
 
-    def __init__(self, spec: ObservationSpec, array: MicArray | str,
+    # spec: an ObservationSpec (typed Any: doabench.features.spec imports this module to build plans)
+    def __init__(self, spec: Any, array: MicArray | str,
                  resolutions: Sequence[str | Sequence[int]] | None = None) -> None:
         self.spec = spec
         self.kinds = spec.kind_names

@@ -30,7 +30,7 @@ from doabench.runner.journal import append_record, config_hash, load_journal
 from doabench.runner.episode_cache import cache_episodes
 from doabench.envs.selection import select_episodes
 from doabench.runner.summary import build_results, episode_row, score
-from doabench.trackers.base import Tracker
+from doabench.trackers.base import Tracker, observations_of
 
 T = TypeVar("T")
 #: ``progress`` of a run: a tqdm bar (True), none (False), or ``fn(episode index, its journal record)``
@@ -116,11 +116,11 @@ def make_env_for(tracker: Tracker, task: str | TaskSpec, device: str | None = No
     """The environment giving the observations a tracker reads (its ``observation_spec``), on
     ``delays`` when given (another delay mode on purpose), else on the tracker's own."""
     spec = get_task_spec(task)
-    wanted = tracker.observation_spec.with_delays(delays)
-    if wanted.frame_spec.fs != spec.frames.fs:
-        raise ConfigError(f"tracker {tracker.name!r} needs {wanted.frame_spec.fs} Hz audio; task {spec.id!r} is "
+    wanted = observations_of(tracker).with_delays(delays)
+    if wanted.frames.fs != spec.frames.fs:
+        raise ConfigError(f"tracker {tracker.name!r} needs {wanted.frames.fs} Hz audio; task {spec.id!r} is "
                           f"{spec.frames.fs} Hz")
-    return DoaEnv(spec, **wanted.env_options(), device=device, **env_options)
+    return DoaEnv(spec, wanted, device=device, **env_options)
 
 
 def step_frame(tracker: Tracker, observation: Any, t: int, where: str = "") -> np.ndarray:
@@ -210,7 +210,7 @@ def execute_spec(spec: Any, tracker: Tracker, partial_path: str | Path | None,
     results = build_results(task, tracker, spec.tracker, dict(spec.options), env, records, wall_s, provenance,
                             spec.delays, selection)
     if spec.trained_delays is not None:
-        results["features"]["trained_delays"] = spec.trained_delays
+        results["trained_delays"] = spec.trained_delays
     if spec.given_id is not None:
         results["tracker"]["given_id"] = spec.given_id
     results["task"]["options"] = identity
