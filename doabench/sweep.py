@@ -10,7 +10,6 @@ results file as it arrives. A run that fails is reported and the others go on.
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,13 +54,14 @@ def finished_results(out: Path, spec: RunSpec, episodes: int | None, tracker_ver
     """The results file of a finished run of ``spec`` in ``out``, else None (the run is (re)done):
     the same configuration (task and version, tracker, options, weights, delays), as many episodes,
     and the same ``tracker_version`` (``Tracker.version``) when one is given."""
+    from doabench.results.schema import load_results
     from doabench.results.writer import results_configuration
 
     path = spec.results_path(out)
     if not path.is_file() or spec.journal_path(out).exists():
         return None
     try:
-        r = json.loads(path.read_text())
+        r = load_results(path)  # a file of an older schema read as the current one
         total = int(r["task"]["episodes_total"])
         want = total if episodes is None else min(int(episodes), total)
         same = (results_configuration(r) == spec.configuration() and int(r["task"]["episodes_run"]) == want
