@@ -139,18 +139,18 @@ class Tracker:
     @property
     def features(self) -> tuple[str, ...]:
         """The observation keys it reads: the names of its ``observation_spec``'s kinds."""
-        return self.observation_spec.kind_names
+        return observations_of(self).kind_names
 
     @property
     def resolution(self) -> tuple[int, int] | None:
         """``(n_theta, n_phi)`` of the SRP maps it reads (its ``observation_spec``'s grid), or None
         if it reads no map."""
-        return self.observation_spec.resolution
+        return observations_of(self).resolution
 
     @property
     def frame_spec(self) -> FrameSpec:
         """Window, hop and sample rate of the observations it reads (its ``observation_spec``'s)."""
-        return self.observation_spec.frames
+        return observations_of(self).frames
 
     @property
     def trained_delays(self) -> str | None:
