@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from doabench.envs.sources import recorded_task_kind
+from doabench.features.kinds import feature_kind
 from doabench.reporting.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, coverage, display_path,
                                       episode_count, load_references, load_runs, partial_coverage, recording_mean)
@@ -240,11 +241,15 @@ def _resolution_text(results: dict[str, Any]) -> str:
 
 
 def _input_text(results: dict[str, Any]) -> str:
-    kinds, res = results_kinds(results), _resolution_text(results)
-    text = ", ".join(kinds)
-    if "srp" in kinds and res:
-        text = text.replace("srp", f"srp {res}", 1)
-    return text or "—"
+    """The kinds a run's tracker read, each kind on the SRP grid that a request names with its grid
+    (``srp``, a plug-in map; not ``srp_max``, which comes with srp) followed by the grid:
+    ``srp 16x32, srp_max``."""
+    parts = []
+    for configured in results_observations(results).kinds:
+        kind, grid = feature_kind(configured.kind), getattr(configured.config, "grid", None)
+        parts.append(f"{kind.name} {resolution_text(grid)}" if kind.on_grid and kind.requestable and grid
+                     else kind.name)
+    return ", ".join(parts) or "—"
 
 
 def _episodes_text(task: dict[str, Any]) -> str:
