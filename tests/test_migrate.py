@@ -214,6 +214,21 @@ def test_every_shipped_weights_file_reads_as_its_features_said() -> None:
             assert read.resolution == doabench.trackers.parse_resolution(raw["resolution"]), path.name
 
 
+def test_loading_weights_compares_their_stored_spec_with_the_trackers() -> None:
+    from doabench.errors import ConfigError
+    from doabench_baselines import weights as W
+
+    path = W.SHIPPED_DIR / "cross3d-4x8.safetensors"
+    stored = W.WeightsFile.read(path).observations
+    state, _ = W.load_weights(path, observations=stored)  # what the tracker reads: they load
+    assert state
+    other = doabench.ObservationSpec.of(("srp", "srp_max"), (4, 8), FrameSpec(2048, 1024, 16000))
+    with pytest.raises(ConfigError, match="was trained on the observations"):
+        W.load_weights(path, observations=other)
+    tracker = doabench.make_tracker("cross3d:4x8")
+    assert tracker.observation_spec == stored
+
+
 # -- doabench migrate ---------------------------------------------------------------------------------
 def _folder(tmp_path: Path) -> Path:
     folder = tmp_path / "r"

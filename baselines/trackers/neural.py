@@ -87,7 +87,7 @@ class NeuralTracker(doabench.Tracker):
             torch.manual_seed(int(seed))
             self.model = self.build_model()
         if self.weights_file is not None:
-            self.weights_file.load_into(self.model, self.model_name)
+            self.weights_file.load_into(self.model, self.model_name, self.observation_spec)
         elif not self.allow_untrained:
             warnings.warn(f"{self.model_name}: no trained weights{self._for_resolution()}; using a randomly "
                           "initialised model (describe() reports trained: false; runs refuse it). Pass "
