@@ -445,7 +445,8 @@ def test_a_name_in_a_results_file_loads_no_plug_in(tmp_path: Path, monkeypatch) 
 
     def entry_points(**kw):
         found = list(declared(**kw))
-        extra = {"doabench.trackers": "evil", "doabench.task_kinds": "evilkind", "doabench.task_prefixes": "evilfile"}
+        extra = {"doabench.trackers": "evil", "doabench.task_kinds": "evilkind", "doabench.task_prefixes": "evilfile",
+                 "doabench.feature_kinds": "evilfeature"}
         if kw.get("group") in extra:
             found.append(metadata.EntryPoint(extra[kw["group"]], "evilmod:Evil", kw["group"]))
         return found
@@ -457,11 +458,19 @@ def test_a_name_in_a_results_file_loads_no_plug_in(tmp_path: Path, monkeypatch) 
     results["tracker"].update(id="evil:16x32", name="evil")
     results["task"]["kind"] = "evilkind"
     assert "options" not in results["task"]  # as in an old file: its task options are read back through its kind
+    results["features"]["kinds"] = ["srp", "evilfeature"]  # an older file's plug-in kind, upgraded as text
     (folder / "sim-grid__evil.json").write_text(json.dumps(results))
+    from doabench.results.upgrade import upgrade_results
+
+    upgraded = upgrade_results(copy.deepcopy(results))
+    upgraded["tracker"]["id"] = "evil:8x16"
+    upgraded["observations"]["kinds"].append({"kind": "evilmap", "grid": "8x16"})  # a current file's plug-in map
+    (folder / "sim-grid__evil-current.json").write_text(json.dumps(upgraded))
     other = _results("srp-max:8x16", 30.0)
     (folder / "sim-grid__srp-max_8x16.json").write_text(json.dumps(other))
     page = build_leaderboards(folder)["sim-grid.md"]
     assert "`evil:16x32 (weights=evil.safetensors)`" in page and "--tracker evil:16x32" in page
+    assert "evilfeature" in page and "evilmap 8x16" in page
     prefixed = tmp_path / "prefixed"
     prefixed.mkdir()
     (prefixed / "r.json").write_text(json.dumps({**results, "task": {**results["task"], "id": "evilfile:x"}}))

@@ -14,7 +14,8 @@ import doabench
 from doabench.cli.main import main
 from doabench.errors import InputError
 from doabench.framing import FrameSpec
-from doabench.results.identity import results_delays, results_observations
+from doabench.features.spec import ObservationSpec
+from doabench.results.identity import results_delays, results_kinds
 from doabench.results.ranking import load_runs
 from doabench.results.schema import load_results
 from doabench.results.upgrade import (NAMES_BEFORE_RECORDING, RESULTS_SCHEMA, WEIGHTS_FORMAT, UpgradeError,
@@ -48,7 +49,7 @@ def test_a_features_block_becomes_the_stored_observation_spec() -> None:
     assert new["schema"] == RESULTS_SCHEMA and "features" not in new
     assert new["observations"] == _spec(("srp", "srp_max"), (8, 16), 2048, 1024, delays="exact")
     assert new["trained_delays"] == "nearest" and results_delays(new) == "exact"
-    assert results_observations(new).frame_spec == FrameSpec(2048, 1024, 16000)
+    assert ObservationSpec.from_dict(new["observations"]).frame_spec == FrameSpec(2048, 1024, 16000)
 
 
 def test_a_learned_trackers_trained_features_become_its_weights_spec() -> None:
@@ -103,7 +104,7 @@ def test_an_interval_of_no_width_written_before_the_rule_becomes_none() -> None:
 
 def test_an_unreadable_features_block_is_one_line_and_the_leaderboard_skips_the_file(tmp_path: Path) -> None:
     old = _v1()
-    old["features"]["kinds"] = ["no-such-kind"]
+    old["features"]["frame"] = {"window": "wide"}  # a kind's name is text (a plug-in's is never looked up); frames are numbers
     with pytest.raises(UpgradeError, match="doabench.results/1 results file that cannot be read") as info:
         upgrade_results(old)
     assert "\n" not in str(info.value)
@@ -146,9 +147,9 @@ def test_committed_results_read_back_with_the_figures_they_store(path: Path) -> 
     for key in ("summary", "cells", "episodes", "scoring", "environment"):
         assert _same(read.get(key), raw.get(key)), key
     if "features" in raw:
-        spec = results_observations(read)
+        spec = ObservationSpec.from_dict(read["observations"])
         assert results_delays(read) == raw["features"]["delays"]
-        assert [getattr(k, "kind", k) for k in spec.kinds] == raw["features"]["kinds"]
+        assert results_kinds(read) == list(spec.kind_names) == raw["features"]["kinds"]
         assert spec.frame_spec.to_dict() == raw["features"]["frame"]
 
 

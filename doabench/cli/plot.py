@@ -99,7 +99,7 @@ def rmsae_vs_speed(args: argparse.Namespace) -> int:
 
 def episode(args: argparse.Namespace) -> int:
     from doabench.geometry import parse_resolution
-    from doabench.results.identity import results_observations
+    from doabench.results.identity import results_grid
     from doabench.results.schema import load_results
     from doabench.reporting.plots import episode_frames, plot_episode, render_episode
 
@@ -127,7 +127,7 @@ def episode(args: argparse.Namespace) -> int:
         import torch
 
         res = parse_resolution(args.resolution) if args.resolution else (
-            results_observations(results).resolution or (32, 64))
+            results_grid(results) or (32, 64))
         _, srp, truth, array = render_episode(task, args.episode, res, **corpus_kwargs(args))
         if len(truth["directions"]) != len(stored["truth"]) or not np.allclose(
                 truth["directions"], stored["truth"], atol=1e-5):

@@ -20,13 +20,12 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from doabench.envs.sources import recorded_task_kind
-from doabench.features.kinds import feature_kind
 from doabench.reporting.distribution import IN, training_distribution
 from doabench.results.ranking import (ReferenceRow, RunFile, TaskBoard, collect, coverage, display_path,
                                       episode_count, load_references, load_runs, partial_coverage, recording_mean)
 from doabench.files import file_stem
 from doabench.geometry import resolution_text
-from doabench.results.identity import (canonical_id, results_delays, results_kinds, results_observations,
+from doabench.results.identity import (canonical_id, results_delays, results_grid, results_inputs, results_kinds,
                                        results_task_options, results_weights_name)
 from doabench.results.intervals import NO_INTERVAL, NO_INTERVAL_NOTE, shown_interval
 from doabench.results.labels import csv_cell
@@ -234,9 +233,7 @@ def _per_recording(run: RunFile) -> dict[str, float]:
 
 def _resolution_text(results: dict[str, Any]) -> str:
     """The SRP grid of a run's observations (``16x32``), empty where they have none."""
-    if not isinstance(results.get("observations"), dict):
-        return ""
-    grid = results_observations(results).resolution
+    grid = results_grid(results)
     return resolution_text(grid) if grid else ""
 
 
@@ -244,11 +241,7 @@ def _input_text(results: dict[str, Any]) -> str:
     """The kinds a run's tracker read, each kind on the SRP grid that a request names with its grid
     (``srp``, a plug-in map; not ``srp_max``, which comes with srp) followed by the grid:
     ``srp 16x32, srp_max``."""
-    parts = []
-    for configured in results_observations(results).kinds:
-        kind, grid = feature_kind(configured.kind), getattr(configured.config, "grid", None)
-        parts.append(f"{kind.name} {resolution_text(grid)}" if kind.on_grid and kind.requestable and grid
-                     else kind.name)
+    parts = [f"{name} {resolution_text(grid)}" if grid else name for name, grid in results_inputs(results)]
     return ", ".join(parts) or "—"
 
 

@@ -15,7 +15,8 @@ from typing import Any, Mapping
 from doabench.envs.registry import get_task_spec
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError, DoabenchError
-from doabench.features.spec import ObservationSpec
+from doabench.features.kinds import BUILTIN_KINDS
+from doabench.geometry import parse_resolution
 
 
 def canonical_id(results: Mapping[str, Any]) -> str:
@@ -26,28 +27,50 @@ def canonical_id(results: Mapping[str, Any]) -> str:
     return str(tracker.get("id") or tracker.get("name"))
 
 
-def results_observations(results: Mapping[str, Any]) -> ObservationSpec:
-    """The observations a run's tracker read (``observations``, read back with
-    ``ObservationSpec.from_dict``); a one-line ConfigError for a file without a readable one."""
+def _stored_kinds(results: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+    """The stored kinds of a run's ``observations`` block (``{"kind": NAME, ...its settings}``), read
+    as data: a kind's name is never looked up among the feature kinds, which would load a plug-in."""
     stored = results.get("observations")
-    if not isinstance(stored, Mapping):
-        raise ConfigError("the results hold no observations block")
-    return ObservationSpec.from_dict(stored)
-
-
-def results_delays(results: Mapping[str, Any]) -> str:
-    """The SRP delay mode a run used (its observations'; ``nearest`` where they hold none)."""
-    if not isinstance(results.get("observations"), Mapping):
-        return "nearest"
-    return results_observations(results).delays or "nearest"
+    kinds = stored.get("kinds") if isinstance(stored, Mapping) else None
+    return [k for k in kinds if isinstance(k, Mapping)] if isinstance(kinds, list) else []
 
 
 def results_kinds(results: Mapping[str, Any]) -> list[str]:
     """The names of the observation kinds a run's tracker read, in order (none where the results
     hold no observations)."""
-    if not isinstance(results.get("observations"), Mapping):
-        return []
-    return [str(getattr(kind, "kind", kind)) for kind in results_observations(results).kinds]
+    return [str(kind.get("kind")) for kind in _stored_kinds(results)]
+
+
+def results_delays(results: Mapping[str, Any]) -> str:
+    """The SRP delay mode a run used (its observations'; ``nearest`` where they hold none)."""
+    return next((str(kind["delays"]) for kind in _stored_kinds(results) if kind.get("delays")), "nearest")
+
+
+def _grid(stored: Mapping[str, Any]) -> tuple[int, int] | None:
+    """A stored kind's grid, or None where it has none (or it does not read as one)."""
+    try:
+        return parse_resolution(str(stored["grid"])) if stored.get("grid") else None
+    except ConfigError:
+        return None
+
+
+def results_grid(results: Mapping[str, Any]) -> tuple[int, int] | None:
+    """The SRP grid ``(n_theta, n_phi)`` of a run's observations, or None where no kind is on one."""
+    return next((grid for grid in map(_grid, _stored_kinds(results)) if grid is not None), None)
+
+
+def results_inputs(results: Mapping[str, Any]) -> list[tuple[str, tuple[int, int] | None]]:
+    """``(kind, grid)`` for each kind a run's tracker read, the grid where a request names the kind
+    with it (``srp:16x32``, a plug-in's map; None for ``srp_max``, which comes with srp, and for
+    kinds off the grid). doabench's own kinds are known without the registry; another kind on a
+    grid is taken as a requested map."""
+    builtin = {kind.name: kind for kind in BUILTIN_KINDS}
+    out = []
+    for stored in _stored_kinds(results):
+        name = str(stored.get("kind"))
+        own = builtin.get(name)
+        out.append((name, _grid(stored) if own is None or own.requestable else None))
+    return out
 
 
 def recorded_task_spec(task_id: str) -> TaskSpec | None:

@@ -40,6 +40,7 @@ from typing import Any, Callable, Mapping
 
 from doabench.envs.sources import recorded_identity
 from doabench.errors import DoabenchError, InputError
+from doabench.features.kinds import BUILTIN_KINDS
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
 from doabench.results.identity import recorded_task_spec
@@ -78,11 +79,18 @@ def _frame(d: Any) -> FrameSpec:
 
 def _spec_dict(kinds: Any, resolution: Any, frame: FrameSpec, delays: Any,
                spectrogram_frame: FrameSpec | None = None) -> dict[str, Any]:
-    """The stored form of the spec an older file describes in its own way."""
+    """The stored form of the spec an older file describes in its own way. doabench's own kinds are
+    configured by ``ObservationSpec.of``; another name (a plug-in's kind: none could be on the grid
+    then) is stored as a kind without settings and never looked up, since reading a file must not
+    load the plug-in it names."""
     if isinstance(kinds, str) or not isinstance(kinds, (list, tuple)):
         raise TypeError(f"kinds {kinds!r} is not a list")
-    return ObservationSpec.of(tuple(str(k) for k in kinds), resolution or None, frame, delays or None,
+    names = [str(k) for k in kinds]
+    builtin = {kind.name for kind in BUILTIN_KINDS}
+    spec = ObservationSpec.of(tuple(n for n in names if n in builtin), resolution or None, frame, delays or None,
                               spectrogram_frame).to_dict()
+    configured = {stored["kind"]: stored for stored in spec["kinds"]}
+    return {**spec, "kinds": [configured.get(name, {"kind": name}) for name in names]}
 
 
 # -- results --------------------------------------------------------------------------------------
