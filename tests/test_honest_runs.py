@@ -160,6 +160,7 @@ def test_run_names_the_file_by_the_canonical_id_and_replaces_an_alias_file(tmp_p
     assert results["tracker"]["id"] == "srp-max:16x32" and results["tracker"]["given_id"] == "srp-max"
     # the same configuration under the alias's name (as written before ids were canonical) is replaced
     legacy = json.loads(path.read_text())
+    legacy["schema"] = "doabench.results/1"
     legacy["tracker"]["id"] = "srp-max"
     del legacy["tracker"]["resolution_in_id"], legacy["tracker"]["given_id"]
     (out / "sim-demo__srp-max.json").write_text(json.dumps(legacy))

@@ -356,8 +356,14 @@ def superseded_section(board: TaskBoard, labels: dict[str, str]) -> list[str]:
     lines = ["", "## Superseded files", "",
              "Same tracker (aliases resolved: `cross3d` is `cross3d:16x32`), options, weights and task version as "
              "a row above; the most complete, then newest, file is shown.", ""]
-    return lines + [f"- `{old.path}` (`{old.results['tracker'].get('id')}`, {coverage(old.results)}): "
+    return lines + [f"- `{old.path}` (`{_given_id(old.results)}`, {coverage(old.results)}): "
                     f"see {labels[shown.path]}" for old, shown in board.superseded]
+
+
+def _given_id(results: dict[str, Any]) -> str:
+    """The tracker id as the run was given it (an alias, ``cross3d``), else its canonical id."""
+    tracker = results.get("tracker") or {}
+    return str(tracker.get("given_id") or tracker.get("id"))
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:

@@ -19,7 +19,8 @@ stored observation spec of an older file becomes the current one through
 * ``tracker.trained_features`` (a learned tracker's weights' ``features`` block: kinds, frames,
   delay mode) becomes the stored spec of the observations the weights were trained on;
 * ``tracker.id``: a bare id of a tracker whose spec is its map resolution (``cross3d``, written
-  before ids were canonical) gets the resolution it ran at (``cross3d:16x32``);
+  before ids were canonical) gets the resolution it ran at (``cross3d:16x32``), ``given_id``
+  keeping the bare id;
 * ``tracker.weights_name``: where absent, the name :data:`NAMES_BEFORE_RECORDING` gives the
   weights' SHA-256 (files of shipped weights written before the name was recorded), else null;
 * ``task.options``: where absent, the task options read back from ``task.source``
@@ -125,7 +126,10 @@ def results_v1_to_v2(data: Mapping[str, Any]) -> dict[str, Any]:
                                                          _frame(trained), trained.get("delay_mode"))
             except (KeyError, TypeError, ValueError, DoabenchError) as exc:
                 raise UpgradeError(f"its tracker.trained_features cannot be read ({exc})") from None
-        tracker["id"] = _canonical_v1_id(tracker)
+        canonical = _canonical_v1_id(tracker)
+        if canonical != tracker.get("id") and tracker.get("id") and "given_id" not in tracker:
+            tracker["given_id"] = str(tracker["id"])  # the alias the run was given, as /2 files keep it
+        tracker["id"] = canonical
         if "weights_name" not in tracker:
             digest = tracker.get("weights_hash")
             tracker["weights_name"] = NAMES_BEFORE_RECORDING.get((tracker["id"], str(digest))) if digest else None
