@@ -171,17 +171,12 @@ import doabench
 
 class EmaTracker(doabench.Tracker):
     """Holds an average of the SRP peak; its spec is the map resolution, not in its id."""
-    features = ("srp",)
     causal = True
 
     def __init__(self, spec=None, alpha=0.5, **options):
         super().__init__(spec, **options)
         self.alpha = float(alpha)
-
-    @property
-    def resolution(self):
-        a, b = (self.spec or "16x32").split("x")
-        return (int(a), int(b))
+        self.observation_spec = doabench.ObservationSpec.of(("srp",), self.spec or "16x32")
 
     def reset(self, array, **context):
         from doabench.geometry import grid_unit_vectors

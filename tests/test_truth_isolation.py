@@ -160,12 +160,8 @@ def test_the_truth_seeker_finds_and_uses_a_leaked_scene():
 
 class _ContextRecorder(doabench.Tracker):
     name = "context-recorder"
-    features = ("srp",)
+    observation_spec = doabench.ObservationSpec.of(("srp",), (4, 8))
     contexts: list[dict[str, Any]] = []
-
-    @property
-    def resolution(self):
-        return (4, 8)
 
     def reset(self, array, **context):
         type(self).contexts.append(dict(context))

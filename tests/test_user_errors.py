@@ -31,7 +31,7 @@ def test_misspelt_plugin_class(tmp_path: Path, monkeypatch, capsys) -> None:
     (tmp_path / "mymod_plugin.py").write_text(
         "import numpy as np, doabench\n"
         "class MyTracker(doabench.Tracker):\n"
-        "    features = ('srp_max',)\n"
+        "    observation_spec = doabench.ObservationSpec.of(('srp_max',))\n"
         "    def step(self, observation):\n"
         "        return np.array([1.0, 0.0, 0.0])\n"
         "NOT_A_TRACKER = 3\n")
