@@ -26,7 +26,7 @@ import datetime
 import hashlib
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -67,20 +67,13 @@ def make_metadata(
     model: nn.Module,
     *,
     array: "doabench.MicArray",
-    observations: Mapping[str, Any] | None = None,
-    frame_spec: "doabench.FrameSpec | None" = None,
-    features: Sequence[str] = (),
-    resolution: tuple[int, int] | None = None,
-    delay_mode: str | None = "nearest",
+    observations: Mapping[str, Any],
     model_config: Mapping[str, Any] | None = None,
     training: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The metadata dict of a weight file (see the module docstring). ``observations``: what the
     network reads, as ``doabench.ObservationSpec.to_dict()`` writes it (the one stored form that
-    results and ONNX files hold too); without it, the spec of ``features`` on ``resolution``,
-    ``frame_spec`` and ``delay_mode`` (``ObservationSpec.of``), stored in that form."""
-    if observations is None:
-        observations = doabench.ObservationSpec.of(tuple(features), resolution, frame_spec, delay_mode).to_dict()
+    results and ONNX files hold too)."""
     return {
         "format": FORMAT,
         "model": model_name,

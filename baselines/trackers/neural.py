@@ -243,10 +243,8 @@ class NeuralTracker(doabench.Tracker):
             array = doabench.get_array(extra["array"])
             self.check_array_fits(array)
         config = {"resolution": resolution_text(self._resolution)} if self.uses_resolution else {}
-        meta = make_metadata(self.model_name, self.model, array=array, frame_spec=observations.frames,
-                             features=observations.kind_names, resolution=observations.resolution,
-                             delay_mode=observations.delays or "nearest", model_config=config, training=training,
-                             observations=observations.to_dict())
+        meta = make_metadata(self.model_name, self.model, array=array, observations=observations.to_dict(),
+                             model_config=config, training=training)
         for key, value in extra.items():
             meta.setdefault(key, value)
         return save_weights(path, self.model, meta)
