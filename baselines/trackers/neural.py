@@ -47,7 +47,7 @@ class NeuralTracker(doabench.Tracker):
     #: whether the model is tied to an SRP map resolution (part of the weight file name)
     uses_resolution: ClassVar[bool] = False
     #: what the network reads when no weights say it (random weights: ``weights=random``); a
-    #: tracker with weights reads its weights' own spec (:attr:`WeightsFile.observations`)
+    #: tracker with weights reads its weights' own spec (the weights file's ``observations``)
     observation_spec = doabench.ObservationSpec.of(("srp",))
 
     @property
