@@ -83,10 +83,11 @@ def _kept(args: argparse.Namespace) -> str:
     from pathlib import Path
 
     from doabench.cli.common import command_line
+    from doabench.results.schema import json_files
     from doabench.runner.journal import journal_count
 
     out = Path(args.out)
-    results = [p for p in out.glob("*.json") if not p.name.startswith(".")] if out.is_dir() else []
+    results = json_files(out) if out.is_dir() else []
     journals = [p for p in out.glob(".*.partial.jsonl")] if out.is_dir() else []
     episodes = sum(journal_count(p) for p in journals)
     parts = [f"{len(results)} results file{'s' if len(results) != 1 else ''}"]

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from doabench.errors import InputError
 from doabench.files import atomic_path, write_json
-from doabench.results.schema import load_results, read_json
+from doabench.results.schema import json_files, load_results, read_json
 from doabench.results.upgrade import (RESULTS_SCHEMA, WEIGHTS_FORMAT, results_version, upgrade_results,
                                       upgrade_weights_metadata)
 from doabench.results.writer import results_path
@@ -50,9 +50,7 @@ def plan_rewrites(folder: str | Path) -> list[Rewrite]:
     if not folder.is_dir():
         raise InputError(f"{folder} is not a folder of results files")
     rewrites = []
-    for path in sorted(folder.glob("*.json")):
-        if path.name.startswith("."):  # doabench's own temporary files
-            continue
+    for path in json_files(folder):
         try:
             _, data = read_json(path)
         except OSError as exc:
@@ -138,7 +136,7 @@ def plan_renames(folder: str | Path) -> list[Rename]:
         raise InputError(f"{folder} is not a folder of results files")
     renames: list[Rename] = []
     names: dict[Path, Path] = {}
-    for path in sorted(folder.glob("*.json")):
+    for path in json_files(folder):
         target = results_path(load_results(path), folder)
         if target in names:
             raise InputError(f"{path.name} and {names[target].name} would both be named {target.name}: "

@@ -30,7 +30,7 @@ from typing import Any, Callable, Iterable, Sequence
 from doabench.errors import ConfigError, InputError
 from doabench.results.labels import inert_text, inert_texts, run_label
 from doabench.results.identity import results_delays
-from doabench.results.schema import JsonBoundsError, read_results, results_problem, summary_problem
+from doabench.results.schema import JsonBoundsError, json_files, read_results, results_problem, summary_problem
 from doabench.results.upgrade import UpgradeError
 
 #: the metric rows are ranked by: the paper's tracking metric (Fig. 8, Table II: silent frames included)
@@ -174,9 +174,7 @@ def _load_folder(folder: Path, warn: Callable[[str], None]) -> list[RunFile]:
         raise InputError(f"results folder {folder} does not exist")
     shown_folder = inert_text(display_path(folder))
     runs = []
-    for path in sorted(folder.glob("*.json")):
-        if path.name.startswith("."):  # doabench's own temporary files
-            continue
+    for path in json_files(folder):
         try:
             data, results = read_results(path)
         except UpgradeError as exc:  # an older file whose content cannot be read as the current schema

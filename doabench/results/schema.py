@@ -64,6 +64,12 @@ def json_depth(text: bytes) -> int:
     return int(np.cumsum(np.where((codes == ord("[")) | (codes == ord("{")), 1, -1)).max())
 
 
+def json_files(folder: Path) -> list[Path]:
+    """The JSON files of a results folder, sorted by name, without doabench's own temporary files
+    (their names start with a dot)."""
+    return [path for path in sorted(folder.glob("*.json")) if not path.name.startswith(".")]
+
+
 def read_json(path: str | Path) -> tuple[bytes, Any]:
     """``(bytes, parsed)`` of a JSON file that may come from anyone: a JsonBoundsError for one that is
     not a regular file, is larger than :data:`MAX_JSON_BYTES` or nests deeper than
