@@ -218,8 +218,9 @@ import os, sys, time
 from pathlib import Path
 import doabench
 import doabench.training.trainer as trainer_module
-from test_training import TinyTracker, energy_features, make_cache
+from test_training import TinyTracker, energy_features, make_cache, use_energy_kind
 
+use_energy_kind()
 caches = Path(sys.argv[1])
 if not caches.exists():
     make_cache(caches / "train", 16, 1)

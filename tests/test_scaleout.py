@@ -297,9 +297,11 @@ def _ddp_rank(rank: int, world: int, ports: list, out: str, caches: tuple, runs:
 
     from doabench.training.distributed import run_distributed
     from doabench.training.trainer import TrainOptions
-    from test_training import energy_features, tiny_recipe, tiny_tracker
+    from test_training import energy_features, tiny_recipe, tiny_tracker, use_energy_kind
 
     import doabench.training.trainer as trainer_module
+
+    use_energy_kind()
 
     trainer_module.plot_history = _no_plot
     os.environ.update(RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank), MASTER_ADDR="127.0.0.1")
@@ -343,8 +345,9 @@ def _launch(world: int, out: str, caches: tuple, runs: list) -> None:
 def test_two_processes_train_the_weights_of_one_and_resume(tmp_path, monkeypatch):
     from doabench.training import checkpoint as ckpt
     from doabench.training.trainer import TrainOptions, Trainer
-    from test_training import energy_features, make_cache, tiny_recipe, tiny_tracker
+    from test_training import energy_features, make_cache, tiny_recipe, tiny_tracker, use_energy_kind
 
+    use_energy_kind(monkeypatch)
     monkeypatch.setattr("doabench.training.trainer.plot_history", _no_plot)
     caches = (make_cache(tmp_path / "train", 6, 1), make_cache(tmp_path / "val", 2, 2))
     one = tmp_path / "one"

@@ -72,7 +72,7 @@ def test_queue_skips_exported_runs_resumes_and_exports_in_order(tree):
     # the spectrogram models train 18 epochs (10,530 trajectories, the paper's >= 10,000; the SELDnet retraining
     # at 1e-3, 24), the rest the paper's 80
     assert all(("--epochs 18 --switch-epoch 9" in c) == (c.split()[2] in ("spec-cnn2d", "seldnet")) for c in trains[:-2])
-    assert "--epochs 24 --switch-epoch 12" in trains[-2] and "--epochs 18 --switch-epoch 9" in trains[-1]
+    assert "--epochs 32 --switch-epoch 12" in trains[-2] and "--epochs 18 --switch-epoch 9" in trains[-1]
     # spec-cnn2d's and Cross3D 32x64's steps dwarf their items: their training processes get both cores' threads
     assert all(f"--threads {2 if c.split()[2] in ('spec-cnn2d', 'cross3d:32x64') else 1}" in c for c in trains)
     exports = [c.split("--export ")[1] for c in calls if "--export" in c]

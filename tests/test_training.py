@@ -48,10 +48,17 @@ ENERGY = FeatureKind("energy", lambda c: (c.array.n_mics,),
                      description="log frame power per microphone")
 
 
+def use_energy_kind(monkeypatch=None) -> None:
+    """Register ENERGY, which the tiny tracker reads: for one test with ``monkeypatch``, else for
+    the process (a subprocess or a worker that trains the tiny tracker)."""
+    if monkeypatch is not None:
+        monkeypatch.setattr(FEATURE_KINDS, "_entries", dict(FEATURE_KINDS.registered()))  # for this test only
+    register_feature_kind(ENERGY)
+
+
 @pytest.fixture(autouse=True)
 def energy_kind(monkeypatch):
-    monkeypatch.setattr(FEATURE_KINDS, "_entries", dict(FEATURE_KINDS.registered()))  # for this test only
-    register_feature_kind(ENERGY)
+    use_energy_kind(monkeypatch)
 
 
 class TinyTracker(doabench.Tracker):

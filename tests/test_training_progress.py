@@ -59,13 +59,9 @@ def test_disabled_bar_writes_nothing_and_lengthless_loaders_count_without_total(
 
 def test_the_trainer_advances_the_bar_batch_by_batch(tmp_path, monkeypatch) -> None:
     import doabench.training.trainer as trainer_module
-    from test_training import ENERGY, make_cache, make_trainer
+    from test_training import make_cache, make_trainer, use_energy_kind
 
-    from doabench.features.kinds import FEATURE_KINDS, register_feature_kind
-
-    # the tiny tracker reads the "energy" kind, registered for this test only (as test_training does)
-    monkeypatch.setattr(FEATURE_KINDS, "_entries", dict(FEATURE_KINDS.registered()))
-    register_feature_kind(ENERGY)
+    use_energy_kind(monkeypatch)
 
     caches = make_cache(tmp_path / "train", 6, 1), make_cache(tmp_path / "val", 2, 2)
 

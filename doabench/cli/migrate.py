@@ -58,8 +58,8 @@ def _folder(folder: Path, dry_run: bool) -> int:
             rewrite_results(r)
         print(f"{r.path.name}: {r.version} -> {RESULTS_SCHEMA}" + (" (--dry-run)" if dry_run else ""))
     renames = plan_renames(folder)
-    for r in renames:
-        print(f"{r.source.name} -> {r.target.name}")
+    for rename in renames:
+        print(f"{rename.source.name} -> {rename.target.name}")
     if not rewrites and not renames:
         print(f"{folder}: every results file is in {RESULTS_SCHEMA} and has its current name")
     elif dry_run:

@@ -104,7 +104,7 @@ class DatasetEpisodes:
 
     def episode(self, j: int) -> Episode:
         index = self._index(j)
-        if not self.has_audio:
+        if self.recording is None:
             raise InputError(f"{self.path} stores no audio ({', '.join(self.file.items)}); only its stored "
                              "features can be replayed")
         g = self.file.group(index)

@@ -27,7 +27,8 @@ import torch
 from numpy.typing import ArrayLike
 
 from doabench.errors import ConfigError, InputError
-from doabench.features.kinds import DELAY_MODES, DelayMode
+from doabench.features.configs import DELAY_MODES
+from doabench.features.kinds import DelayMode
 from doabench.geometry import SPEED_OF_SOUND, grid_unit_vectors
 
 PHAT_EPS = 1e-12

@@ -34,8 +34,7 @@ from typing import Any, Callable, Iterable, Literal, NamedTuple, Sequence
 import numpy as np
 
 from doabench.errors import ConfigError, DoabenchError, FeatureKindError, one_line
-# DEFAULT_RESOLUTION and DELAY_MODES are read from here by the layers that name kinds
-from doabench.features.configs import DEFAULT_RESOLUTION, DELAY_MODES, FramesConfig, KindConfig, MapConfig  # noqa: F401
+from doabench.features.configs import FramesConfig, KindConfig, MapConfig
 from doabench.framing import FrameSpec
 from doabench.geometry import grid_angles, parse_resolution, resolution_text
 from doabench.plugins import Registry

@@ -22,7 +22,8 @@ from numpy.typing import ArrayLike
 
 from doabench.arrays import MicArray, get_array
 from doabench.errors import InputError
-from doabench.features.kinds import DEFAULT_RESOLUTION, DelayMode
+from doabench.features.configs import DEFAULT_RESOLUTION
+from doabench.features.kinds import DelayMode
 from doabench.framing import FrameSpec
 from doabench.geometry import grid_angles
 

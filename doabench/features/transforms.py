@@ -23,9 +23,8 @@ from doabench.arrays import MicArray, get_array
 from doabench.errors import ConfigError, FeatureKindError, InputError
 from doabench.features import functional as F
 from doabench.features.context import STFTContext
+from doabench.features.configs import DEFAULT_RESOLUTION, DELAY_MODES
 from doabench.features.kinds import (
-    DEFAULT_RESOLUTION,
-    DELAY_MODES,
     EXTRACTOR_KINDS,
     DelayMode,
     FeatureKind,

@@ -30,6 +30,8 @@ def shown_interval(results: Mapping[str, Any], metric: str, cell: str | None = N
     None where the file holds none (or not two finite numbers)."""
     part = results.get("summary") if cell is None else (results.get("cells") or {}).get(cell)
     stored = part.get(f"{metric}_ci95") if isinstance(part, Mapping) else None
+    if not isinstance(stored, (list, tuple)):
+        return None
     try:
         low, high = (float(v) for v in stored)
     except (TypeError, ValueError):

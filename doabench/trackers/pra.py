@@ -14,7 +14,7 @@ from typing import Any, Mapping, cast
 import numpy as np
 
 from doabench.arrays import MicArray
-from doabench.features.kinds import DEFAULT_RESOLUTION
+from doabench.features.configs import DEFAULT_RESOLUTION
 from doabench.features.spec import ObservationSpec
 from doabench.framing import frame_signal
 from doabench.geometry import SPEED_OF_SOUND, angles_to_unit, grid_angles, parse_resolution

@@ -7,7 +7,7 @@ import numpy as np
 
 from doabench.arrays import MicArray
 from doabench.errors import ConfigError
-from doabench.features.kinds import DEFAULT_RESOLUTION
+from doabench.features.configs import DEFAULT_RESOLUTION
 from doabench.features.spec import ObservationSpec
 from doabench.geometry import NO_SOURCE, grid_unit_vectors, parse_resolution
 from doabench.trackers.base import Tracker
