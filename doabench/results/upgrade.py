@@ -41,6 +41,7 @@ from typing import Any, Callable, Mapping
 
 from doabench.envs.sources import recorded_identity
 from doabench.errors import DoabenchError, InputError
+from doabench.features.configs import frame_spec_from_dict
 from doabench.features.kinds import BUILTIN_KINDS
 from doabench.features.spec import ObservationSpec
 from doabench.framing import FrameSpec
@@ -75,7 +76,8 @@ class UpgradeError(InputError):
 
 
 def _frame(d: Any) -> FrameSpec:
-    return FrameSpec(int(d["window"]), int(d["hop"]), int(d["fs"]))
+    """The frames of an older block that holds ``window``, ``hop`` and ``fs`` among other keys."""
+    return frame_spec_from_dict({key: d[key] for key in ("window", "hop", "fs")})
 
 
 def _spec_dict(kinds: Any, resolution: Any, frame: FrameSpec, delays: Any,
