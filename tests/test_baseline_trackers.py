@@ -33,8 +33,9 @@ def _episode(tracker, n, seed=0):
         ep["srp_max"] = rng.random((n, 2)).astype(np.float32)
     if "gcc" in tracker.features:
         ep["gcc"] = rng.standard_normal((n, 66, 13)).astype(np.float32)
-    if "spectrogram" in tracker.features:
-        ep["spectrogram"] = rng.random((n, 24, tracker.frame_spec.window // 2)).astype(np.float32)
+    for kind in ("spectrogram", "spectrogram_ipd"):
+        if kind in tracker.features:
+            ep[kind] = rng.random((n, 24, tracker.frame_spec.window // 2)).astype(np.float32)
     return ep
 
 
@@ -186,6 +187,38 @@ def test_training_protocol(text, tmp_path):
         warnings.simplefilter("error")
         loaded = doabench.make_tracker(text, weights=str(path))
     assert loaded.describe()["training"] == {"epochs_completed": 1}
+
+
+@pytest.mark.parametrize("text", ["spec-cnn2d", "seldnet"])
+def test_phase_option_reads_relative_phases_and_travels_with_the_weights(text, tmp_path):
+    """phase=relative reads the spectrogram_ipd kind; weights trained on it carry it (phase=auto
+    reads it back), and weights of one phase are refused with the other, in one line."""
+    tracker = _make(text, phase="relative")
+    assert tracker.phase == "relative" and tracker.features == ("spectrogram_ipd",)
+    assert _make(text).phase == "absolute" and _make(text).features == ("spectrogram",)
+    ep = _episode(tracker, 4)
+    batch = {k: torch.as_tensor(v[None]) for k, v in ep.items()}
+    assert tracker.network(tracker.network_input(batch)).shape == (1, 4, 3)
+    path = tracker.save_weights(tmp_path / "w.safetensors", {"array": "nao", "training": {"epochs_completed": 1}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        loaded = doabench.make_tracker(text, weights=str(path))
+        assert loaded.phase == "relative" and loaded.features == ("spectrogram_ipd",)
+        assert doabench.make_tracker(text, weights=str(path), phase="relative").phase == "relative"
+    with pytest.raises(ConfigError, match="not on the kind .* phase=absolute \\(spectrogram\\)"):
+        doabench.make_tracker(text, weights=str(path), phase="absolute")
+    with pytest.raises(ConfigError, match="phase must be auto, absolute or relative, got 'ipd'"):
+        _make(text, phase="ipd")
+
+
+def test_relative_phase_tracker_runs_a_task():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        results = doabench.run("seldnet", "sim-demo", episodes=1, progress=False,
+                               scene_overrides={"duration_s": 3.0, "n_points": 24},
+                               tracker_options={"weights": "random", "phase": "relative"})
+    assert results["tracker"]["features"] == ["spectrogram_ipd"] and results["tracker"]["options"]["phase"] == "relative"
+    assert np.isfinite(results["summary"]["rmsae_all"])
 
 
 def test_hold_in_silences_repeats_the_last_informed_frame():

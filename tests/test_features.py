@@ -430,3 +430,44 @@ def test_srp_of_one_frame_equals_the_batched_maps():
     one_by_one = torch.stack([torch.cat([F.srp_from_gcc(gcc[b:b + 1, t:t + 1], srp.index, 32, 64)
                                          for t in range(4)], dim=1)[0] for b in range(2)])
     torch.testing.assert_close(one_by_one, batched, rtol=1e-5, atol=1e-4)
+
+
+def test_relative_phase_is_the_plane_wave_delay():
+    """``phase="relative"``: a plane wave's phase at mic m minus mic 1's is -2 pi f tau_m (wrapped),
+    whatever the source's own phase; the magnitudes are those of the absolute form."""
+    rng = np.random.default_rng(3)
+    u = random_directions(4, rng)
+    K, n_bins = 1024, 513
+    tau = -(u @ NAO.positions.T) * FS / SPEED_OF_SOUND  # (B, M) samples
+    tau = tau - tau[:, :1]  # relative to the first mic
+    k = np.arange(n_bins)
+    source = rng.standard_normal((4, 1, n_bins)) + 1j * rng.standard_normal((4, 1, n_bins))
+    X = torch.from_numpy(source * np.exp(-2j * np.pi * k * tau[..., None] / K))[:, None]  # (B, 1 frame, M, bins)
+    rel = F.spectrogram_features(X, phase="relative")
+    expected = np.angle(np.exp(-2j * np.pi * k[1:] * tau[..., None] / K)) / np.pi
+    got = rel[:, 0, NAO.n_mics:].numpy()
+    wrapped = np.abs((got - expected + 1) % 2 - 1)  # the same angle, +-1 being one point
+    assert wrapped.max() < 1e-6
+    assert np.abs(got[:, 0]).max() == 0  # the first mic against itself
+    absolute = F.spectrogram_features(X)
+    torch.testing.assert_close(rel[:, :, :NAO.n_mics], absolute[:, :, :NAO.n_mics])
+    assert not torch.allclose(rel[:, :, NAO.n_mics:], absolute[:, :, NAO.n_mics:])
+
+
+def test_relative_phase_of_a_recorded_plane_wave():
+    """Through the STFT (Hann windows) a plane wave's relative phase matches -2 pi f tau at the low
+    bins, where the delay is a small part of the window, and the transform says which phase it gives."""
+    rng = np.random.default_rng(4)
+    u = random_directions(4, rng)[3:]  # one random direction
+    x = torch.from_numpy(plane_wave(u, 16 * 4096, NAO.positions, rng))
+    s = Spectrogram(FrameSpec(4096, 3072, FS), phase="relative")(x)
+    tau = -(u @ NAO.positions.T)[0] * FS / SPEED_OF_SOUND
+    tau = tau - tau[0]
+    bins = np.arange(1, 200)
+    expected = np.angle(np.exp(-2j * np.pi * bins[None] * tau[:, None] / 4096)) / np.pi  # (M, bins)
+    got = s[0, :, NAO.n_mics:, :199].numpy()  # (frames, M, bins)
+    assert np.median(np.abs((got - expected[None] + 1) % 2 - 1)) < 0.01
+    with pytest.raises(ConfigError, match="phase must be one of absolute, relative"):
+        Spectrogram(FrameSpec(4096), phase="ipd")
+    with pytest.raises(ConfigError, match="phase must be one of"):
+        F.spectrogram_features(torch.zeros(1, 1, 2, 5, dtype=torch.complex64), phase="diff")

@@ -45,7 +45,7 @@ def test_one_kind_registry_everywhere():
     assert not hasattr(env_module, "FEATURE_KINDS") and not hasattr(transforms, "KINDS")
     assert not hasattr(schema, "KINDS") and not hasattr(schema, "HALF_KINDS")
     assert set(EXTRACTOR_KINDS) | set(FRAMED_KINDS) == set(OBSERVATION_KINDS)
-    assert tuple(k.name for k in BUILTIN_KINDS if k.half) == ("srp", "gcc", "spectrogram")
+    assert tuple(k.name for k in BUILTIN_KINDS if k.half) == ("srp", "gcc", "spectrogram", "spectrogram_ipd")
     assert doabench.ObservationPlan is ObservationPlan
 
 
@@ -54,6 +54,7 @@ def test_one_kind_registry_everywhere():
     ("srp_max:8x16", ("srp_max", (8, 16)), "features/srp_max_8x16"),
     ("gcc", ("gcc", None), "features/gcc"),
     ("spectrogram", ("spectrogram", None), "features/spectrogram"),
+    ("spectrogram_ipd", ("spectrogram_ipd", None), "features/spectrogram_ipd"),
     ("audio", ("audio", None), "audio"),
 ])
 def test_names_round_trip_and_paths(name, parsed, path):
@@ -94,6 +95,7 @@ def test_spaces_match_what_the_environment_declared():
         "srp_max": spaces.Box(0.0, 1.0, (2,), np.float32),
         "gcc": spaces.Box(-1.0, 1.0, (len(array.pairs), lags), np.float32),
         "spectrogram": spaces.Box(-1.0, 1.0, (2 * array.n_mics, SPEC.window // 2), np.float32),
+        "spectrogram_ipd": spaces.Box(-1.0, 1.0, (2 * array.n_mics, SPEC.window // 2), np.float32),
         "audio": spaces.Box(-np.inf, np.inf, (array.n_mics, SPEC.window), np.float32),
         "vad": spaces.Discrete(2),
     }
@@ -155,7 +157,7 @@ def test_environment_and_dataset_computer_use_the_plan(monkeypatch):
 
 def test_unknown_environment_kind_message():
     with pytest.raises(ConfigError, match=r"unknown feature kind\(s\) \['mfcc'\]; choose from srp, srp_max, gcc, "
-                                          r"spectrogram, audio"):
+                                          r"spectrogram, spectrogram_ipd, audio"):
         DoaEnv("sim-demo", features=("srp", "mfcc"))
 
 

@@ -67,7 +67,8 @@ def test_queue_skips_exported_runs_resumes_and_exports_in_order(tree):
     assert "--tracker-opt weights=moving" in trains[-3] and "weights=random" not in trains[-3]
     # the spectrogram retrainings carry their own recipe
     assert "--out training-runs/seldnet-lr1e-3" in trains[-2] and "--lr 1e-3,1e-4" in trains[-2]
-    assert "--out training-runs/spec-cnn2d-he" in trains[-1] and "--threads 2" in trains[-1]
+    assert "--out training-runs/spec-cnn2d-ipd" in trains[-1] and "--threads 2" in trains[-1]
+    assert "--tracker-opt weights=random" in trains[-1] and "--tracker-opt phase=relative" in trains[-1]
     assert "--resume" in trains[0] and all("--resume" not in c for c in trains[1:])
     # the spectrogram models train 18 epochs (10,530 trajectories, the paper's >= 10,000; the SELDnet retraining
     # at 1e-3, 24), the rest the paper's 80
@@ -88,7 +89,7 @@ def test_queue_skips_exported_runs_resumes_and_exports_in_order(tree):
                        "baselines/weights/cross3d-8x16-moving.safetensors",
                        "baselines/weights/cross3d-32x64-moving.safetensors",
                        "baselines/weights/cross3d-16x32-moving-long.safetensors",
-                       "baselines/weights/seldnet-lr1e-3.safetensors", "baselines/weights/spec-cnn2d-he.safetensors"]
+                       "baselines/weights/seldnet-lr1e-3.safetensors", "baselines/weights/spec-cnn2d-ipd.safetensors"]
     for name in ("cross3d-8x16", "max-cnn1d-64x128", "seldnet"):
         run = tree / "training-runs" / name
         assert (run / "exported.txt").exists() and not (run / "checkpoint.safetensors").exists()
@@ -144,7 +145,7 @@ def test_a_resumed_run_keeps_its_recipe(tree):
 def test_threads_of_a_bf16_or_fp32_entry_follow_the_cpu(tree):
     for name in ("cross3d-16x32", "cross3d-8x16", "cross3d-4x8", "gcc-cnn1d", "max-cnn1d-64x128", "seldnet",
                  "spec-cnn2d", "cross3d-16x32-moving", "cross3d-8x16-moving", "cross3d-32x64-moving",
-                 "cross3d-16x32-moving-long", "seldnet-lr1e-3", "spec-cnn2d-he"):
+                 "cross3d-16x32-moving-long", "seldnet-lr1e-3", "spec-cnn2d-ipd"):
         (tree / "training-runs" / name).mkdir(parents=True)
         (tree / "training-runs" / name / "exported.txt").write_text("exported\n")
     # cross3d-16x32-v3's fp32 step is twice its item's cost: where the CPU has no native bf16 the

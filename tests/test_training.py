@@ -464,6 +464,29 @@ def test_resume_refuses_another_task_or_a_network_that_does_not_fit(tmp_path, ca
                 log=lambda m: None)
 
 
+def test_resume_and_export_refuse_a_tracker_that_reads_other_observations(tmp_path, caches):
+    """A tracker option may change what the network reads and not its shapes (a spectrogram
+    tracker's phase): the run records its observations and options, a resume or an export with a
+    tracker reading anything else is refused in one line, naming the options it started with."""
+    from doabench.training import checkpoint as ckpt
+    from doabench.training.export import export_weights
+
+    make_trainer(tmp_path / "run", caches, max_epochs=1, tracker_options={"weights": "random", "gain": 2}).run()
+    state = ckpt.load_checkpoint(tmp_path / "run" / ckpt.LATEST)
+    assert state["tracker_options"] == {"gain": 2}  # what builds the same tracker again, weights aside
+    assert state["observations"] == tiny_tracker().observation_spec.to_dict()
+    other = tiny_tracker()
+    other.observation_spec = doabench.ObservationSpec.of(("energy",), frame_spec=doabench.FrameSpec(1024, 512))
+    opts = TrainOptions(tracker="tiny", out=tmp_path / "run", recipe=tiny_recipe(), progress=False, resume=True)
+    with pytest.raises(doabench.DoabenchError, match="holds a run trained on energy @ 256/192.*not on energy @ "
+                                                     "1024/512.*--tracker-opt gain=2"):
+        Trainer(opts, tracker=other, feature_fn=energy_features, train_cache=caches[0], val_cache=caches[1],
+                log=lambda m: None)
+    with pytest.raises(doabench.DoabenchError, match="does not read"):
+        export_weights(tmp_path / "run", tmp_path / "w.safetensors", tracker=other)
+    assert not (tmp_path / "w.safetensors").exists()
+
+
 def test_resume_refuses_a_run_of_another_task_version(tmp_path, caches):
     from doabench.training import checkpoint as ckpt
 

@@ -17,7 +17,9 @@ class SeldnetTracker(SpectrogramTracker):
 
     Frames: 512-sample windows with doabench's 3/4-window hop (384 samples, 24 ms), so its
     estimates are on a finer time grid than the K = 4096 models; the scores compare each tracker
-    with the truth of its own frames.
+    with the truth of its own frames. Option ``phase``: ``absolute`` (each microphone's phase, the
+    paper's), ``relative`` (minus the first microphone's: the ``spectrogram_ipd`` kind) or ``auto``
+    (what its weights read).
     """
 
     model_name = "seldnet"

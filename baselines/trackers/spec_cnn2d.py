@@ -13,7 +13,11 @@ if TYPE_CHECKING:
 
 @doabench.register_tracker("spec-cnn2d")
 class SpecCnn2dTracker(SpectrogramTracker):
-    """Causal 2D CNN over magnitude and phase spectrograms, K = 4096 (paper V-A)."""
+    """Causal 2D CNN over magnitude and phase spectrograms, K = 4096 (paper V-A).
+
+    Option ``phase``: ``absolute`` (each microphone's phase, the paper's text), ``relative`` (minus
+    the first microphone's: the ``spectrogram_ipd`` kind) or ``auto`` (what its weights read).
+    """
 
     model_name = "spec-cnn2d"
 

@@ -72,6 +72,10 @@ DATASET_ATTRS: dict[str, dict[str, str]] = {
                              "description": "channels 0..M-1: each microphone's magnitude divided by its maximum "
                                             "over frequency; M..2M-1: phase / pi; the DC bin dropped; zero in "
                                             "silent frames"},
+    "features/spectrogram_ipd": {"units": "1", "axes": "(frame, channel, frequency bin)",
+                                 "description": "channels 0..M-1 as in features/spectrogram; M..2M-1: each "
+                                                "microphone's phase minus the first microphone's, wrapped, / pi "
+                                                "(channel M is zero); the DC bin dropped; zero in silent frames"},
     "audio": {"units": "1", "axes": "(microphone, sample)",
               "description": "the microphone signals as simulated or recorded (linear amplitude, float32)"},
     "sample_directions": {"units": "1", "axes": "(sample, [x, y, z])",
@@ -189,7 +193,7 @@ def parse_feature(text: str) -> FeatureRequest:
     found = requestable_kind(name.strip())
     if found is None:
         plugins = [k for k in FEATURE_KINDS.names() if k not in OBSERVATION_KINDS]
-        raise ConfigError(f"unknown dataset feature {text!r}; choose from srp:NxM, gcc, spectrogram, audio"
+        raise ConfigError(f"unknown dataset feature {text!r}; choose from srp:NxM, gcc, spectrogram, spectrogram_ipd, audio"
                           + "".join(f", {k}" for k in plugins))
     kind = found.name
     if not found.on_grid:

@@ -16,6 +16,7 @@ window) // hop``):
 * ``maps``: ``(batch, frames, n_theta, n_phi)`` normalised SRP-PHAT maps (needs ``srp``);
 * ``map_maxima``: ``(batch, frames, 2)`` where each map peaks, as fractions of the grid span;
 * ``spectrogram``: ``(batch, frames, 2 * n_mics, window // 2)`` magnitude and phase channels.
+* ``spectrogram_ipd``: the same shape, the phases relative to the first microphone's.
 
 Nothing here is masked: the extractor zeroes the silent frames of what each kind returns.
 """
@@ -92,3 +93,9 @@ class STFTContext:
     def spectrogram(self) -> torch.Tensor:
         """``(batch, frames, 2 * n_mics, window // 2)``: magnitudes over their maximum, then phase / pi."""
         return F.spectrogram_features(self.spectra)
+
+    @cached_property
+    def spectrogram_ipd(self) -> torch.Tensor:
+        """``(batch, frames, 2 * n_mics, window // 2)``: magnitudes over their maximum, then each mic's
+        phase minus the first mic's, / pi (the interchannel phase differences)."""
+        return F.spectrogram_features(self.spectra, phase="relative")

@@ -454,19 +454,31 @@ def map_argmax_directions(maps: torch.Tensor, planar: bool = False) -> torch.Ten
 # --------------------------------------------------------------------------------------------
 # Spectrogram features and silent frames
 # --------------------------------------------------------------------------------------------
-def spectrogram_features(X: torch.Tensor) -> torch.Tensor:
+#: The phase channels :func:`spectrogram_features` can give: each microphone's own phase, or its
+#: phase relative to the first microphone's (the interchannel phase difference).
+SPECTROGRAM_PHASES = ("absolute", "relative")
+
+
+def spectrogram_features(X: torch.Tensor, phase: str = "absolute") -> torch.Tensor:
     """Magnitude and phase channels, ``(batch, frames, n_mics, n_bins)`` -> ``(batch, frames,
     2 * n_mics, n_bins - 1)`` float.
 
     Channels ``0..M-1``: each mic's magnitude divided by its maximum over frequency in that frame
     (an all-zero spectrum stays zero); channels ``M..2M-1``: phase / pi in ``[-1, 1]``. The DC bin
     is dropped, so ``n_bins - 1 = window // 2`` bins remain (the last is Nyquist for even K).
+    ``phase="relative"``: each mic's phase minus the first mic's, wrapped to ``(-pi, pi]`` (the angle
+    of its cross-spectrum with the first mic), so the source signal's own phase cancels and a
+    plane wave gives ``-2 pi f tau_m`` at frequency ``f`` for the mic's delay ``tau_m`` after the
+    first; the first mic's channel is then zero (kept, so both phases give the same shape).
     """
+    if phase not in SPECTROGRAM_PHASES:
+        raise ConfigError(f"spectrogram phase must be one of {', '.join(SPECTROGRAM_PHASES)}, got {phase!r}")
     Xs = X[..., 1:]
     mag = Xs.abs()
     peak = mag.amax(dim=-1, keepdim=True)
     mag = mag / torch.where(peak > 0, peak, torch.ones_like(peak))
-    return torch.cat([mag, torch.angle(Xs) / math.pi], dim=-2)
+    angles = torch.angle(Xs * Xs[..., :1, :].conj() if phase == "relative" else Xs)
+    return torch.cat([mag, angles / math.pi], dim=-2)
 
 
 def zero_silent(features: torch.Tensor, vad: torch.Tensor | None) -> torch.Tensor:

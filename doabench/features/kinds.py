@@ -6,7 +6,7 @@ and in what precision, what its axes hold, which frames it is computed on, and h
 itself from the shared STFT context of one extractor pass
 (:class:`~doabench.features.context.STFTContext`: the spectra, their PHAT whitening, the GCC and
 the SRP maps, each computed once for every kind that reads it). The built-in kinds (srp, srp_max,
-gcc, spectrogram, audio) are declared here like a plug-in's, which is registered with
+gcc, spectrogram, spectrogram_ipd, audio) are declared here like a plug-in's, which is registered with
 :func:`register_feature_kind` or declared in the ``doabench.feature_kinds`` entry-point group
 (docs/extending.md). The environment, make-dataset, ``track``, ``features``, the trainer and the
 plots all read kinds through :class:`~doabench.features.plan.ObservationPlan` and
@@ -173,11 +173,15 @@ def _gcc_axes(c: FrameContext) -> dict[str, Any]:
             "lags": list(range(-max_lag, max_lag + 1))}
 
 
-def _spectrogram_axes(c: FrameContext) -> dict[str, Any]:
+def _spectrogram_axes(c: FrameContext, phases: str = "phase/pi of mics 1..M") -> dict[str, Any]:
     spec = c.spectrogram_frame_spec or c.frame_spec
     return {"axes": ["frame", "channel", "frequency"],
-            "channels": "magnitude of mics 1..M (each divided by its maximum), then phase/pi of mics 1..M",
+            "channels": f"magnitude of mics 1..M (each divided by its maximum), then {phases}",
             "frequencies_hz": (np.arange(1, spec.window // 2 + 1) * spec.fs / spec.window).tolist()}
+
+
+def _spectrogram_ipd_axes(c: FrameContext) -> dict[str, Any]:
+    return _spectrogram_axes(c, "(phase of mic m - phase of mic 1)/pi for m = 1..M, wrapped to (-1, 1]")
 
 
 BUILTIN_KINDS: tuple[FeatureKind, ...] = (
@@ -192,6 +196,10 @@ BUILTIN_KINDS: tuple[FeatureKind, ...] = (
                 axes=_gcc_axes, description="GCC-PHAT of every mic pair"),
     FeatureKind("spectrogram", _spectrogram_shape, low=-1.0, high=1.0, compute=lambda stft: stft.spectrogram,
                 own_frames=True, half=True, config=FramesConfig, axes=_spectrogram_axes, description="magnitude and phase spectrogram"),
+    # the phases relative to the first microphone's: a plane wave's are -2 pi f tau, whatever the source
+    FeatureKind("spectrogram_ipd", _spectrogram_shape, low=-1.0, high=1.0, compute=lambda stft: stft.spectrogram_ipd,
+                own_frames=True, half=True, config=FramesConfig, axes=_spectrogram_ipd_axes,
+                description="magnitude spectrogram and phase differences to the first microphone"),
     FeatureKind("audio", lambda c: (c.array.n_mics, c.frame_spec.window), framed=True,
                 description="the recording's samples, framed"),
 )

@@ -129,18 +129,21 @@ class _Transform(torch.nn.Module):
 
 
 class Spectrogram(_Transform):
-    """Magnitude/phase spectrogram features (:func:`functional.spectrogram_features`).
+    """Magnitude/phase spectrogram features (:func:`functional.spectrogram_features`; ``phase``:
+    ``absolute``, or ``relative`` to the first microphone's).
 
     ``forward(audio (batch, n_mics, samples), vad (batch, frames) | None)`` (call the module) ->
     ``(batch, frames, 2 * n_mics, window // 2)`` float32, silent frames zeroed.
     """
 
-    def __init__(self, frame_spec: FrameSpec = FrameSpec()) -> None:
+    def __init__(self, frame_spec: FrameSpec = FrameSpec(), phase: str = "absolute") -> None:
         super().__init__()
-        self.frame_spec = frame_spec
+        if phase not in F.SPECTROGRAM_PHASES:
+            raise ConfigError(f"spectrogram phase must be one of {', '.join(F.SPECTROGRAM_PHASES)}, got {phase!r}")
+        self.frame_spec, self.phase = frame_spec, phase
 
     def from_spectra(self, X: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
-        return F.zero_silent(F.spectrogram_features(X), vad)
+        return F.zero_silent(F.spectrogram_features(X, self.phase), vad)
 
     def forward(self, audio: torch.Tensor, vad: torch.Tensor | None = None) -> torch.Tensor:
         X = F.stft_frames(audio, self.frame_spec.window, self.frame_spec.hop)
@@ -270,6 +273,7 @@ class FeatureExtractor(_Transform):
     * ``srp_max``: ``(B, T, 2)`` normalised elevation/azimuth of each map's maximum
     * ``gcc``: ``(B, T, n_pairs, 2 * max_lag + 1)``
     * ``spectrogram``: ``(B, T_s, 2 * n_mics, K_s // 2)`` on ``spectrogram_frame_spec``'s grid
+    * ``spectrogram_ipd``: the same, the phases relative to the first microphone's
 
     and any plug-in kind (:func:`~doabench.features.kinds.register_feature_kind`), each computed by
     its kind's ``compute`` from the pass's shared :class:`~doabench.features.context.STFTContext`

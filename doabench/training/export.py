@@ -101,9 +101,16 @@ def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best
 
         state["threads"] = json.loads(config.read_text()).get("threads")
     tracker_id = tracker_id or state["tracker"]
-    tracker = tracker if tracker is not None else make_tracker(tracker_id, weights="random") if _takes_weights(
-        tracker_id) else make_tracker(tracker_id)
+    if tracker is None:  # built with the options the run trained with (what it reads may depend on them)
+        options = dict(state.get("tracker_options") or {})
+        if _takes_weights(tracker_id):
+            options["weights"] = "random"
+        tracker = make_tracker(tracker_id, **options)
     check_trainable(tracker, tracker_id)
+    trained_on = state.get("observations")
+    if trained_on is not None and trained_on != training_observations(tracker).to_dict():
+        raise ConfigError(f"{run_dir} was trained on observations {trained_on}, which tracker {tracker_id!r} "
+                          f"does not read ({training_observations(tracker)}); export it with the tracker it trained")
     tracker.network.load_state_dict(ckpt.best_weights(state) if which == "best" else state["model"])
     tracker.network.eval()
     out_path = Path(out_path)

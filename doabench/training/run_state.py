@@ -27,6 +27,7 @@ import torch
 
 from doabench.envs.spec import TaskSpec
 from doabench.errors import ConfigError
+from doabench.features.spec import ObservationSpec
 from doabench.training import checkpoint as ckpt
 from doabench.training.recipes import Recipe, resume_conflicts, resumed_phases
 
@@ -110,6 +111,26 @@ def check_same_network(saved: Mapping[str, Any], network: torch.nn.Module, track
         raise ConfigError(f"{out} holds a run of {saved.get('tracker', 'another tracker')} whose "
                           f"weights do not fit {tracker}; resume it with that --tracker or "
                           "start a new run in another --out")
+
+
+def build_options(tracker_options: Mapping[str, Any]) -> dict[str, Any]:
+    """The tracker options that build the run's network as it trains, recorded in the checkpoint
+    so that an export builds the same tracker: all but ``weights`` (an export loads the run's own)."""
+    return {k: v for k, v in tracker_options.items() if k != "weights"}
+
+
+def check_same_observations(saved: Mapping[str, Any], observations: Any, out: Path) -> None:
+    """A resumed run must read what it started on (a tracker option such as a spectrogram tracker's
+    ``phase`` changes the observations, not the network's shapes); runs older than the record pass."""
+    recorded = saved.get("observations")
+    if recorded is not None and recorded != observations.to_dict():
+        raise ConfigError(f"{out} holds a run trained on {ObservationSpec.from_dict(recorded)}, not on "
+                          f"{observations}; resume it with the tracker options it started with "
+                          f"({_options_text(saved.get('tracker_options'))}) or start a new run in another --out")
+
+
+def _options_text(options: Mapping[str, Any] | None) -> str:
+    return ", ".join(f"--tracker-opt {k}={v}" for k, v in (options or {}).items()) or "none besides weights"
 
 
 def initial_weights(saved: Mapping[str, Any] | None, tracker: Any, name: str,
@@ -218,6 +239,7 @@ def checkpoint_state(progress: RunProgress, network: torch.nn.Module, optimizer:
             "best_epoch": progress.best_epoch, "optimizer": optimizer.state_dict(), "rng": ckpt.rng_state(),
             "recipe": run["recipe"], "tracker": run["tracker"], "task": run["task"],
             "task_version": run["task_version"], "initial_weights": run["initial_weights"],
+            "tracker_options": run.get("tracker_options") or {}, "observations": run.get("observations"),
             "history": progress.history, "compute_s": progress.compute_s,
             "trajectories_seen": progress.trajectories_seen, "threads": setup["threads"],
             "precision": setup["precision"], "device": setup["device"], "workers": setup["workers"],

@@ -30,7 +30,7 @@ from doabench.training.losses import tracking_loss
 from doabench.training.pipeline import DEFAULT_CACHE_ROOT
 from doabench.training.precision import PrecisionPolicy, cpu_has_native_bf16, resume_precision, training_device
 from doabench.training.progress import EpochProgress, loader_length
-from doabench.training.protocol import check_trainable, training_defaults
+from doabench.training.protocol import check_trainable, training_defaults, training_observations
 from doabench.training.recipes import Recipe
 from doabench.training.run_log import CSV_COLUMNS, plot_history, write_log
 from doabench.training.validation import ValidationScores
@@ -136,6 +136,7 @@ class Trainer:
         self.network: torch.nn.Module = self.tracker.network
         if self.saved is not None:
             run_state.check_same_network(self.saved, self.network, options.tracker, self.out)
+            run_state.check_same_observations(self.saved, training_observations(self.tracker), self.out)
         self.policy = PrecisionPolicy.for_network(self.network, self.device, precision, options.compile)
         self.policy.place(self.network)
         self.train_forward = torch.compile(self.network) if options.compile else self.network
@@ -301,7 +302,9 @@ class Trainer:
 
     def _checkpoint_state(self, progress: run_state.RunProgress) -> dict[str, Any]:
         run = {"recipe": self.recipe.to_dict(), "tracker": self.options.tracker, "task": self.spec.id,
-               "task_version": self.spec.version, "initial_weights": self.initial_weights}
+               "task_version": self.spec.version, "initial_weights": self.initial_weights,
+               "tracker_options": run_state.build_options(self.options.tracker_options),
+               "observations": training_observations(self.tracker).to_dict()}
         setup = {"threads": torch.get_num_threads(), "precision": self.precision, "device": str(self.device),
                  "workers": self.workers, "compiled": bool(self.options.compile)}
         return run_state.checkpoint_state(progress, self.network, self.optimizer, run, setup, self.best_by)
