@@ -209,6 +209,8 @@ def test_phase_option_reads_relative_phases_and_travels_with_the_weights(text, t
         doabench.make_tracker(text, weights=str(path), phase="absolute")
     with pytest.raises(ConfigError, match="phase must be auto, absolute or relative, got 'ipd'"):
         _make(text, phase="ipd")
+    with pytest.raises(ConfigError, match="its weights read other observations"):  # shipped: absolute phases
+        tracker.warm_start_from(doabench.make_tracker(text))
 
 
 def test_relative_phase_tracker_runs_a_task():

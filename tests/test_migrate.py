@@ -200,19 +200,27 @@ def test_weights_metadata_of_unknown_or_broken_formats_is_one_line() -> None:
 
 
 def test_every_shipped_weights_file_reads_as_its_features_said() -> None:
+    """Older files (doabench-weights/1, flat ``features``) upgrade to what they said; files written
+    in the current format read back their stored observations as they are."""
     from safetensors import safe_open
 
     from doabench_baselines import weights as W
 
+    older = 0
     for path in sorted(W.SHIPPED_DIR.glob("*.safetensors")):
         with safe_open(str(path), framework="pt", device="cpu") as f:
             raw = json.loads(f.metadata()["doabench"])
         read = W.WeightsFile.read(path)
         assert read.metadata["format"] == W.FORMAT == WEIGHTS_FORMAT
+        if raw["format"] == WEIGHTS_FORMAT:
+            assert read.observations.to_dict() == raw["observations"], path.name
+            continue
+        older += 1
         assert read.frame_spec == FrameSpec(raw["features"]["window"], raw["features"]["hop"], raw["features"]["fs"])
         assert read.delay_mode == raw["features"]["delay_mode"]
         if raw["resolution"]:
             assert read.resolution == doabench.trackers.parse_resolution(raw["resolution"]), path.name
+    assert older >= 1  # the upgrade is exercised on real files
 
 
 def test_loading_weights_compares_their_stored_spec_with_the_trackers() -> None:
