@@ -192,9 +192,9 @@ def parse_feature(text: str) -> FeatureRequest:
     name, _, res = text.strip().partition(":")
     found = requestable_kind(name.strip())
     if found is None:
+        builtins = [f"{k}:NxM" if FEATURE_KINDS.get(k).on_grid else k for k in DATASET_KINDS]
         plugins = [k for k in FEATURE_KINDS.names() if k not in OBSERVATION_KINDS]
-        raise ConfigError(f"unknown dataset feature {text!r}; choose from srp:NxM, gcc, spectrogram, spectrogram_ipd, audio"
-                          + "".join(f", {k}" for k in plugins))
+        raise ConfigError(f"unknown dataset feature {text!r}; choose from {', '.join(builtins + plugins)}")
     kind = found.name
     if not found.on_grid:
         if res:

@@ -108,9 +108,10 @@ def export_weights(run_dir: str | Path, out_path: str | Path, which: str = "best
         tracker = make_tracker(tracker_id, **options)
     check_trainable(tracker, tracker_id)
     trained_on = state.get("observations")
-    if trained_on is not None and trained_on != training_observations(tracker).to_dict():
+    reads = training_observations(tracker)
+    if trained_on is not None and trained_on != reads.to_dict():
         raise ConfigError(f"{run_dir} was trained on observations {trained_on}, which tracker {tracker_id!r} "
-                          f"does not read ({training_observations(tracker)}); export it with the tracker it trained")
+                          f"does not read ({reads}); export it with the tracker it trained")
     tracker.network.load_state_dict(ckpt.best_weights(state) if which == "best" else state["model"])
     tracker.network.eval()
     out_path = Path(out_path)
