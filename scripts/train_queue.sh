@@ -87,8 +87,10 @@ fi
 # microphone's own phase (the paper's text) it fitted neither 20 anechoic trajectories at any rate
 # tried nor, in 2 epochs from its He initialisation (training-runs/spec-cnn2d-he, stopped there), the
 # held validation set; relative phases fit them (docs/training.md, "The spectrogram models: what was
-# measured"). Each exports beside the shipped run and becomes its tracker's default only if it scores
-# better (docs/results.md).
+# measured"). It was stopped after epoch 15 of 18: its held validation had stopped falling at the
+# second phase's rate (epochs 10-15: 18.68, 18.37, 18.40, 18.12, 18.18, 18.17 deg), and its best
+# epoch, 13, was exported (training-runs/spec-cnn2d-ipd/card.md). Each exports beside the shipped run
+# and becomes its tracker's default only if it scores better (docs/results.md).
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 float32 0 1"
     "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 float32 0 1"
