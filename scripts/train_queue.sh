@@ -89,8 +89,9 @@ fi
 # held validation set; relative phases fit them (docs/training.md, "The spectrogram models: what was
 # measured"). It was stopped after epoch 15 of 18: its held validation had stopped falling at the
 # second phase's rate (epochs 10-15: 18.68, 18.37, 18.40, 18.12, 18.18, 18.17 deg), and its best
-# epoch, 13, was exported (training-runs/spec-cnn2d-ipd/card.md). Each exports beside the shipped run
-# and becomes its tracker's default only if it scores better (docs/results.md).
+# epoch, 13, was exported (training-runs/spec-cnn2d-ipd/card.md). Each exports beside the shipped run;
+# the default rule (docs/models.md) decides whether it becomes its tracker's default (spec-cnn2d-ipd
+# does not: it lags 1.85 s on sim-walk).
 QUEUE=(
     "cross3d:16x32 paper cross3d-16x32 cross3d-16x32 float32 0 1"
     "cross3d:8x16 paper cross3d-8x16 cross3d-8x16 float32 0 1"
